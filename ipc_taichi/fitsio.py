@@ -1,0 +1,146 @@
+"""FITS input and output for the command line: one-line errors, atomic writes.
+
+Errors name the file and the HDU. Outputs are written to a temporary file in
+the destination directory and renamed into place, so a failure never leaves a
+truncated file at the output path, and an existing file is only replaced with
+``overwrite=True``.
+"""
+
+import os
+import tempfile
+
+import numpy as np
+
+from .errors import IPCInputError
+
+__all__ = ["read_image", "write_image", "parse_hdu", "atomic_output", "check_output_path"]
+
+# structural and scaling keywords that must not be copied onto a new float image
+_STRUCTURAL = {"SIMPLE", "XTENSION", "BITPIX", "NAXIS", "EXTEND", "PCOUNT", "GCOUNT",
+               "BSCALE", "BZERO", "BLANK", "CHECKSUM", "DATASUM", "GROUPS"}
+
+
+def parse_hdu(text):
+    """``"1"`` -> 1, ``"SCI"`` -> "SCI", ``"SCI,2"`` -> ("SCI", 2), None -> None."""
+    if text is None:
+        return None
+    if isinstance(text, (int, tuple)):
+        return text
+    text = str(text).strip()
+    if text.lstrip("-").isdigit():
+        return int(text)
+    name, comma, ver = text.partition(",")
+    if comma:
+        try:
+            return (name.strip(), int(ver))
+        except ValueError:
+            raise IPCInputError(f"HDU {text!r}: expected INDEX, NAME or NAME,VER") from None
+    return name
+
+
+def _label(hdu):
+    return f"[{hdu[0]},{hdu[1]}]" if isinstance(hdu, tuple) else f"[{hdu}]"
+
+
+def read_image(path, hdu=None):
+    """Read an image HDU; return ``(data, header, hdu_label)``.
+
+    ``hdu=None`` takes the first HDU that holds image data. ``data`` is a
+    native-endian float64 array (scaled by BSCALE/BZERO where present).
+    """
+    from astropy.io import fits
+
+    if not os.path.exists(path):
+        raise IPCInputError(f"{path}: no such file")
+    try:
+        hdul = fits.open(path, memmap=False)
+    except Exception as exc:
+        raise IPCInputError(f"{path}: not a readable FITS file ({type(exc).__name__}: "
+                            f"{str(exc).splitlines()[0] if str(exc) else ''})") from None
+    with hdul:
+        if hdu is None:
+            index = next((k for k, h in enumerate(hdul)
+                          if h.is_image and h.header.get("NAXIS", 0) > 0), None)
+            if index is None:
+                raise IPCInputError(f"{path}: no HDU holds image data")
+            hdu = index
+        try:
+            h = hdul[hdu]
+        except (KeyError, IndexError):
+            raise IPCInputError(f"{path}{_label(hdu)}: no such HDU (file has {len(hdul)}: "
+                                f"{', '.join(str(x.name) or '?' for x in hdul)})") from None
+        label = f"{path}{_label(hdu)}"
+        if not h.is_image:
+            raise IPCInputError(f"{label}: is a {type(h).__name__}, not an image")
+        try:
+            data = h.data
+        except Exception as exc:
+            raise IPCInputError(f"{label}: data cannot be read ({exc})") from None
+        if data is None:
+            raise IPCInputError(f"{label}: HDU has no data")
+        if data.ndim not in (2, 3) or data.size == 0:
+            raise IPCInputError(f"{label}: expected a 2-D image or 3-D cube, got shape {data.shape}")
+        data = np.asarray(data, dtype=np.float64)  # native order, scaled
+        header = h.header.copy()
+    return data, header, label
+
+
+def check_output_path(path, overwrite):
+    """Refuse to replace an existing file unless ``overwrite``."""
+    if os.path.exists(path) and not overwrite:
+        raise IPCInputError(f"{path}: exists (use --overwrite to replace it)")
+    parent = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(parent):
+        raise IPCInputError(f"{path}: directory {parent} does not exist")
+
+
+class atomic_output:
+    """Context manager yielding a temporary path beside ``path``; renamed onto
+    ``path`` only if the block succeeds, deleted otherwise."""
+
+    def __init__(self, path, overwrite=False):
+        self.path = path
+        self.overwrite = overwrite
+
+    def __enter__(self):
+        check_output_path(self.path, self.overwrite)
+        parent = os.path.dirname(os.path.abspath(self.path))
+        fd, self.tmp = tempfile.mkstemp(prefix=".tmp-", suffix=os.path.basename(self.path),
+                                        dir=parent)
+        os.close(fd)
+        os.unlink(self.tmp)  # writers create it themselves
+        return self.tmp
+
+    def __exit__(self, exc_type, exc, tb):
+        if exc_type is None:
+            if os.path.exists(self.path) and not self.overwrite:  # appeared meanwhile
+                os.unlink(self.tmp)
+                raise IPCInputError(f"{self.path}: exists (use --overwrite to replace it)")
+            os.replace(self.tmp, self.path)
+        elif os.path.exists(self.tmp):
+            os.unlink(self.tmp)
+        return False
+
+
+def write_image(path, data, header=None, overwrite=False, keywords=None, history=()):
+    """Write ``data`` as the primary HDU of ``path`` atomically.
+
+    The cards of ``header`` (e.g. the input HDU's) are kept, except structural
+    and scaling keywords; ``keywords`` (name -> (value, comment)) and
+    ``history`` lines are added.
+    """
+    from astropy.io import fits
+
+    out = fits.Header()
+    if header is not None:
+        for card in header.cards:
+            if card.keyword in _STRUCTURAL or card.keyword.startswith("NAXIS"):
+                continue
+            out.append(card, end=True)
+    for key, (value, comment) in (keywords or {}).items():
+        out[key] = (value, comment)
+    for line in history:
+        out.add_history(line)
+    hdu = fits.PrimaryHDU(data=np.asarray(data), header=out)
+    with atomic_output(path, overwrite) as tmp:
+        hdu.writeto(tmp, output_verify="silentfix")

@@ -1,0 +1,149 @@
+"""The one place that initialises Taichi.
+
+Taichi has a single runtime per process. :func:`init` owns it: it is
+idempotent, it is called lazily by every public function that runs a
+kernel, and it is never called at import time.
+
+The arch is chosen, in order, by the ``arch`` argument, the environment
+variable ``IPC_TAICHI_ARCH`` (``auto``, ``cpu`` or ``cuda``) and the default
+``auto``. The precision likewise by ``precision``, ``IPC_TAICHI_PRECISION``
+(``f64`` or ``f32``) and the default ``f64``.
+
+- ``cuda`` requested explicitly and not available raises
+  :class:`~ipc_taichi.errors.ArchUnavailableError`.
+- ``auto`` tries CUDA and falls back to the CPU with a logged notice.
+
+Asking for a different arch or precision than the running one resets the
+runtime (kernels are recompiled on next use).
+"""
+
+import contextlib
+import io
+import logging
+import os
+from dataclasses import dataclass
+
+from .errors import ArchUnavailableError
+
+__all__ = ["RuntimeInfo", "init", "current", "ARCH_ENV", "PRECISION_ENV"]
+
+ARCH_ENV = "IPC_TAICHI_ARCH"
+PRECISION_ENV = "IPC_TAICHI_PRECISION"
+_ARCHES = ("auto", "cpu", "cuda")
+_PRECISIONS = ("f64", "f32")
+
+log = logging.getLogger("ipc_taichi")
+
+
+@dataclass(frozen=True)
+class RuntimeInfo:
+    """What the running Taichi runtime actually is.
+
+    Attributes
+    ----------
+    arch : str
+        ``"cpu"`` or ``"cuda"``: the arch kernels run on.
+    precision : str
+        ``"f64"`` or ``"f32"``: the floating type of every array and kernel.
+    requested : str
+        The arch that was asked for (``auto``, ``cpu`` or ``cuda``).
+    """
+
+    arch: str
+    precision: str
+    requested: str
+
+    @property
+    def dtype(self):
+        """NumPy dtype matching ``precision``."""
+        import numpy as np
+
+        return np.float64 if self.precision == "f64" else np.float32
+
+
+_current = None
+_reset_hooks = []
+
+
+def _resolve(value, env, allowed, default, what):
+    value = value if value is not None else os.environ.get(env) or default
+    value = str(value).strip().lower()
+    if value not in allowed:
+        raise ValueError(
+            f"unknown {what} {value!r} (from {'argument' if value else env}); "
+            f"choose one of {', '.join(allowed)}"
+        )
+    return value
+
+
+def on_reset(hook):
+    """Register ``hook()`` to run whenever the runtime is (re)initialised.
+
+    Kernel factories use it to drop kernels built for the previous runtime.
+    """
+    _reset_hooks.append(hook)
+    return hook
+
+
+def current():
+    """The :class:`RuntimeInfo` of the running runtime, or ``None``."""
+    return _current
+
+
+def init(arch=None, precision=None):
+    """Initialise Taichi once (idempotent) and report what is running.
+
+    Parameters
+    ----------
+    arch : {"auto", "cpu", "cuda"}, optional
+        Default: ``$IPC_TAICHI_ARCH`` or ``"auto"``.
+    precision : {"f64", "f32"}, optional
+        Default: ``$IPC_TAICHI_PRECISION`` or ``"f64"``.
+
+    Returns
+    -------
+    RuntimeInfo
+    """
+    global _current
+    requested = _resolve(arch, ARCH_ENV, _ARCHES, "auto", "arch")
+    precision = _resolve(precision, PRECISION_ENV, _PRECISIONS, "f64", "precision")
+
+    if _current is not None and _current.precision == precision and (
+        requested == _current.requested
+        or requested == _current.arch
+        or requested == "auto"
+    ):
+        return _current
+
+    # Taichi prints a banner to stdout on import and logs its CUDA probe at
+    # warning level; our own notice below says what matters.
+    os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "False")
+    os.environ.setdefault("TI_LOG_LEVEL", "error")
+    import taichi as ti
+
+    if _current is not None:
+        ti.reset()
+    for hook in _reset_hooks:
+        hook()
+
+    fp = ti.f64 if precision == "f64" else ti.f32
+    # fast_math off: it may reorder the stopping rule's max-reductions and drop
+    # IEEE guarantees we rely on for f64 agreement with the NumPy reference.
+    common = dict(default_fp=fp, fast_math=False, log_level=ti.ERROR)
+    # ti.init prints "Starting on arch=..." unconditionally; keep stdout clean
+    # for command-line output (the arch is reported by RuntimeInfo instead)
+    with contextlib.redirect_stdout(io.StringIO()):
+        ti.init(arch=ti.cpu if requested == "cpu" else ti.cuda, **common)
+    got = ti.lang.impl.current_cfg().arch
+    arch_name = "cuda" if got == ti.cuda else "cpu"
+    if arch_name != "cuda" and requested == "cuda":
+        _current = None
+        ti.reset()
+        raise ArchUnavailableError(
+            "CUDA was requested (arch='cuda') but no CUDA device is available; "
+            "use arch='cpu' or 'auto'"
+        )
+    if arch_name != "cuda" and requested == "auto":
+        log.warning("notice: CUDA not available, ipc_taichi runs on the CPU")
+    _current = RuntimeInfo(arch=arch_name, precision=precision, requested=requested)
+    return _current

@@ -1,0 +1,48 @@
+"""Tests run Taichi on the CPU arch in f64 unless marked ``gpu``."""
+
+import os
+
+import numpy as np
+import pytest
+
+os.environ.setdefault("IPC_TAICHI_ARCH", "cpu")
+os.environ.setdefault("IPC_TAICHI_PRECISION", "f64")
+
+
+def cuda_available():
+    try:
+        import ctypes
+
+        ctypes.CDLL("libcuda.so.1")
+        return True
+    except OSError:
+        return False
+
+
+def pytest_collection_modifyitems(config, items):
+    if cuda_available():
+        return
+    skip = pytest.mark.skip(reason="needs a CUDA GPU")
+    for item in items:
+        if "gpu" in item.keywords:
+            item.add_marker(skip)
+
+
+@pytest.fixture
+def cpu():
+    """The CPU/f64 runtime the tests assume."""
+    import ipc_taichi
+
+    return ipc_taichi.init("cpu", "f64")
+
+
+@pytest.fixture
+def rng():
+    return np.random.default_rng(12345)
+
+
+@pytest.fixture
+def worked_truth():
+    from ipc_taichi.demo import worked_example_truth
+
+    return worked_example_truth()

@@ -1,0 +1,43 @@
+import numpy as np
+import pytest
+
+import ipc_taichi
+from ipc_taichi import runtime
+from tests.conftest import cuda_available
+
+
+def test_init_is_idempotent(cpu):
+    again = ipc_taichi.init("cpu", "f64")
+    assert again is cpu and again.arch == "cpu" and again.dtype == np.float64
+    # auto keeps whatever runs already
+    assert ipc_taichi.init("auto") is cpu
+
+
+def test_unknown_arch_and_precision():
+    with pytest.raises(ValueError, match="unknown arch"):
+        ipc_taichi.init("tpu")
+    with pytest.raises(ValueError, match="unknown precision"):
+        ipc_taichi.init("cpu", "f16")
+
+
+def test_environment_selects_arch(monkeypatch, cpu):
+    monkeypatch.setenv(runtime.ARCH_ENV, "cpu")
+    assert ipc_taichi.init().arch == "cpu"
+
+
+def test_explicit_cuda(cpu):
+    if cuda_available():
+        assert ipc_taichi.init("cuda").arch == "cuda"
+    else:
+        with pytest.raises(ipc_taichi.ArchUnavailableError, match="CUDA was requested"):
+            ipc_taichi.init("cuda")
+    assert ipc_taichi.init("cpu", "f64").arch == "cpu"
+
+
+def test_f32_precision_then_back(worked_truth):
+    m32 = ipc_taichi.couple(worked_truth, arch="cpu", precision="f32")
+    assert m32.dtype == np.float32
+    assert runtime.current().precision == "f32"
+    m64 = ipc_taichi.couple(worked_truth, arch="cpu", precision="f64")
+    assert m64.dtype == np.float64
+    np.testing.assert_allclose(m32, m64, rtol=1e-6, atol=1e-3)
