@@ -27,6 +27,14 @@ test-gpu: install
 demo: install
 	$(BIN)/ipc-taichi demo
 
+# Speed benchmark: writes bench/results.json and bench/RESULTS.md (with the machine).
+bench: install
+	$(BIN)/ipc-taichi bench
+
+# Every figure of the paper that can be made, and figures/RESULTS.md; rebuilds only what changed.
+figures: install
+	$(MAKE) -C figures PYTHON=$(abspath $(BIN)/python)
+
 lock:
 	rm -rf /tmp/ipc-taichi-lock && $(PY) -m venv /tmp/ipc-taichi-lock
 	/tmp/ipc-taichi-lock/bin/pip install -q . ".[test]"
