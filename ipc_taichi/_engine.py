@@ -1,9 +1,10 @@
 """Input preparation and the runner of the shared step kernel.
 
 Public functions validate and prepare arrays here (native-endian, contiguous,
-the runtime's float type, bad pixels masked), then call the kernel through a
-:class:`Stepper`. On the CPU the NumPy arrays are handed to Taichi without a
-copy; on CUDA they are uploaded once and stay on the device between
+the runtime's float type, bad pixels masked, a zero border of ``reach``
+pixels around the frame; see :mod:`ipc_taichi._kernels`), then call the kernel
+through a :class:`Stepper`. On the CPU the NumPy arrays are handed to Taichi
+without a copy; on CUDA they are uploaded once and stay on the device between
 iterations, only the two stopping-rule numbers come back per iteration.
 """
 
@@ -16,6 +17,11 @@ from .geometry import Geometry
 from .laws import check_convergence, get_law
 
 EDGES = ("zero", "isolated")
+
+# rows per task of the CPU sweep: a strip re-evaluates the dy-row pairs above
+# it (1/STRIP_ROWS extra work for nearest neighbours) and 2 cores need a few
+# dozen tasks to balance when other processes share them
+STRIP_ROWS = 32
 
 
 def as_stack(data, what):
@@ -36,15 +42,26 @@ def as_stack(data, what):
     return arr, False
 
 
-def prepare_frame(frame, dtype):
-    """Native-endian contiguous copy in ``dtype``, bad pixels zeroed, and the
-    validity mask (``None`` when every pixel is finite)."""
-    work = np.array(frame, dtype=dtype, order="C", copy=True)
-    valid = np.isfinite(work)
+def prepare_frame(frame, dtype, reach=0):
+    """The frame in ``dtype`` inside a zero border of ``reach`` pixels, bad
+    pixels zeroed, and the validity mask of the frame (``None`` when every
+    pixel is finite). Returns ``(padded, valid)``; one copy of the frame."""
+    ny, nx = frame.shape
+    padded = np.zeros((ny + 2 * reach, nx + 2 * reach), dtype=dtype)
+    inner = interior(padded, reach)
+    inner[...] = frame
+    valid = np.isfinite(inner)
     if valid.all():
-        return work, None
-    work[~valid] = 0.0
-    return work, valid
+        return padded, None
+    inner[~valid] = 0.0
+    return padded, valid
+
+
+def interior(padded, reach):
+    """The frame inside a padded array (a view)."""
+    if reach == 0:
+        return padded
+    return padded[reach:-reach, reach:-reach]
 
 
 def resolve_model(law, geometry, edge):
@@ -59,16 +76,25 @@ def resolve_model(law, geometry, edge):
     return law, geometry, edge
 
 
-class Stepper:
-    """Runs ``dst = base + sign * flow(src)`` for one law/geometry/edge."""
+def default_layout(arch):
+    """The kernel layout that suits ``arch`` (see :mod:`ipc_taichi._kernels`)."""
+    return "pixel" if arch == "cuda" else "sweep"
 
-    def __init__(self, law, geometry, edge, masked, info):
+
+class Stepper:
+    """Runs ``dst = base + sign * flow(src)`` for one law/geometry/edge on
+    padded arrays (see :func:`prepare_frame`)."""
+
+    def __init__(self, law, geometry, edge, masked, info, layout=None):
         half = geometry.half_stencil()
         self.info = info
         self.dtype = info.dtype
-        self.kernel = get_step_kernel(KernelConfig(
+        self.config = KernelConfig(
             offsets=tuple(u for u, _ in half), law_kind=law.kind, edge=edge,
-            masked=masked, precision=info.precision))
+            masked=masked, precision=info.precision,
+            layout=layout or default_layout(info.arch))
+        self.kernel = get_step_kernel(self.config)
+        self.reach = self.config.reach
         dtype = self.dtype
         self.on_device = info.arch == "cuda"
         self.p = self.to_runtime(law.kernel_params().astype(dtype))
@@ -76,7 +102,18 @@ class Stepper:
         table = law.table if law.kind == "table" else np.zeros((2, 2))
         self.table = self.to_runtime(np.ascontiguousarray(table, dtype=dtype))
         self.stats = self.to_runtime(np.zeros(2, dtype=dtype))
-        self.no_mask = self.to_runtime(np.ones((1, 1), dtype=np.uint8))
+        self.all_ok = self.to_runtime(np.ones((1, 1), dtype=np.uint8))
+        self.rings = {}
+
+    def ok_array(self, padded_shape, valid):
+        """The ``ok`` byte array for the kernel: 1 where a pixel may couple.
+        Border pixels may couple with the zero edge (they take charge), not
+        with the isolated edge; bad pixels never do."""
+        if not self.config.uses_ok:
+            return None
+        ok = np.full(padded_shape, 1 if self.config.edge == "zero" else 0, dtype=np.uint8)
+        interior(ok, self.reach)[...] = True if valid is None else valid
+        return self.to_runtime(ok)
 
     def to_runtime(self, array):
         """A NumPy array as the kernel will take it (device ndarray on CUDA)."""
@@ -90,27 +127,47 @@ class Stepper:
         nd.from_numpy(array)
         return nd
 
-    def empty_like(self, shape):
+    def zeros(self, shape):
         if not self.on_device:
-            return np.empty(shape, dtype=self.dtype)
+            return np.zeros(shape, dtype=self.dtype)
         import taichi as ti
 
-        return ti.ndarray(dtype=ti.f64 if self.dtype == np.float64 else ti.f32, shape=shape)
+        nd = ti.ndarray(dtype=ti.f64 if self.dtype == np.float64 else ti.f32, shape=shape)
+        nd.fill(0)
+        return nd
 
     def to_numpy(self, array):
         return array.to_numpy() if self.on_device else array
 
-    def __call__(self, src, base, dst, mask, sign):
-        """One step; returns ``(max|dst - src|, max|dst|)`` over good pixels."""
+    def ring(self, padded_shape):
+        """Scratch rows of the CPU sweep for frames of this padded shape."""
+        cfg = self.config
+        if cfg.layout != "sweep":
+            shape = (1, 1, 1, 1)
+        else:
+            strips = -(-(padded_shape[0] - 2 * self.reach) // STRIP_ROWS)
+            shape = (strips, max(1, len(cfg.vertical)), cfg.ring_depth, padded_shape[1])
+        if shape not in self.rings:
+            self.rings = {shape: self.zeros(shape)}  # one frame size at a time
+        return self.rings[shape]
+
+    def __call__(self, src, base, dst, ok, sign):
+        """One step on padded arrays; returns ``(max|dst - src|, max|dst|)``
+        over good pixels."""
         if self.on_device:
             self.stats.fill(0)
         else:
             self.stats[:] = 0
-        self.kernel(src, base, dst, self.no_mask if mask is None else mask,
-                    self.p, self.w, self.table, float(sign), self.stats)
+        ring = self.ring(src.shape)
+        self.kernel(src, base, dst, self.all_ok if ok is None else ok, self.p, self.w,
+                    self.table, float(sign), self.stats, ring, STRIP_ROWS)
         stats = self.to_numpy(self.stats)
         return float(stats[0]), float(stats[1])
 
 
 def start(arch, precision):
     return runtime.init(arch, precision)
+
+
+__all__ = ["as_stack", "prepare_frame", "interior", "resolve_model", "Stepper", "start",
+           "STRIP_ROWS", "default_layout"]

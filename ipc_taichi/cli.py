@@ -18,7 +18,8 @@ from . import __version__
 from .errors import ConvergenceWarning, DivergenceError
 
 # modules providing subcommands, in the order --help lists them
-SUBCOMMAND_MODULES = ["ipc_taichi._cli_frames", "ipc_taichi.demo"]
+SUBCOMMAND_MODULES = ["ipc_taichi._cli_frames", "ipc_taichi.demo", "ipc_taichi.bench",
+                      "ipc_taichi.discover.cli"]
 
 
 def add_model_arguments(parser, iterative=False):

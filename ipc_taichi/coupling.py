@@ -19,12 +19,13 @@ output; they are treated like the outside of an ``isolated`` frame.
 
 import numpy as np
 
-from ._engine import Stepper, as_stack, prepare_frame, resolve_model, start
+from ._engine import Stepper, as_stack, interior, prepare_frame, resolve_model, start
 
 __all__ = ["couple"]
 
 
-def couple(signal, law="donlon2018", geometry=None, edge="zero", arch=None, precision=None):
+def couple(signal, law="donlon2018", geometry=None, edge="zero", arch=None, precision=None,
+           layout=None):
     """Apply signal-dependent IPC to ``signal`` (2-D frame or 3-D stack).
 
     Parameters
@@ -40,6 +41,9 @@ def couple(signal, law="donlon2018", geometry=None, edge="zero", arch=None, prec
         What lies beyond the frame (see module docstring).
     arch, precision : str, optional
         Passed to :func:`ipc_taichi.runtime.init`.
+    layout : {None, "sweep", "pixel"}
+        Kernel loop layout (see :mod:`ipc_taichi._kernels`); ``None`` picks the
+        one that suits the arch. Results agree to rounding.
 
     Returns
     -------
@@ -60,16 +64,16 @@ def couple(signal, law="donlon2018", geometry=None, edge="zero", arch=None, prec
     out = np.empty(stack.shape, dtype=info.dtype)
     steppers = {}
     for k, frame in enumerate(stack):
-        work, valid = prepare_frame(frame, info.dtype)
+        work, valid = prepare_frame(frame, info.dtype, geometry.reach)
         masked = valid is not None
         if masked not in steppers:
-            steppers[masked] = Stepper(law, geometry, edge, masked, info)
+            steppers[masked] = Stepper(law, geometry, edge, masked, info, layout=layout)
         step = steppers[masked]
+        ok = step.ok_array(work.shape, valid)
         src = step.to_runtime(work)
-        dst = step.empty_like(work.shape)
-        mask = step.to_runtime(valid.astype(np.uint8)) if masked else None
-        step(src, src, dst, mask, +1.0)
-        out[k] = step.to_numpy(dst)
+        dst = step.zeros(work.shape)
+        step(src, src, dst, ok, +1.0)
+        out[k] = interior(step.to_numpy(dst), step.reach)
         if masked:
             out[k][~valid] = np.nan
     return out[0] if was_2d else out

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ._engine import Stepper, as_stack, prepare_frame, resolve_model, start
+from ._engine import Stepper, as_stack, interior, prepare_frame, resolve_model, start
 from .errors import ConvergenceWarning, DivergenceError, IPCInputError
 
 __all__ = ["decouple", "DecoupleInfo"]
@@ -52,7 +52,7 @@ class DecoupleInfo:
 
 
 def decouple(measured, law="donlon2018", geometry=None, edge="zero", max_iter=20, tol=1e-5,
-             arch=None, precision=None, callback=None, full_output=False):
+             arch=None, precision=None, callback=None, full_output=False, layout=None):
     """Remove signal-dependent IPC from ``measured`` (2-D frame or 3-D stack).
 
     Parameters
@@ -73,6 +73,9 @@ def decouple(measured, law="donlon2018", geometry=None, edge="zero", max_iter=20
         ``estimate`` must not be modified (it is the working array on the CPU).
     full_output : bool
         Also return a :class:`DecoupleInfo` (a list of them for a 3-D stack).
+    layout : {None, "sweep", "pixel"}
+        Kernel loop layout (see :mod:`ipc_taichi._kernels`); ``None`` picks the
+        one that suits the arch. Results agree to rounding.
 
     Returns
     -------
@@ -103,14 +106,14 @@ def decouple(measured, law="donlon2018", geometry=None, edge="zero", max_iter=20
     infos = []
     steppers = {}
     for k, frame in enumerate(stack):
-        work, valid = prepare_frame(frame, info.dtype)
+        work, valid = prepare_frame(frame, info.dtype, geometry.reach)
         masked = valid is not None
         if masked not in steppers:
-            steppers[masked] = Stepper(law, geometry, edge, masked, info)
+            steppers[masked] = Stepper(law, geometry, edge, masked, info, layout=layout)
         frame_info = DecoupleInfo(arch=info.arch, precision=info.precision, law=law.describe(),
                                   geometry=geometry.describe(), edge=edge)
-        result = _iterate(steppers[masked], work, valid, max_iter, tol, callback, frame_info)
-        out[k] = result
+        out[k] = _iterate(steppers[masked], work, valid, max_iter, tol, callback, frame_info)
+        del work
         if masked:
             out[k][~valid] = np.nan
         infos.append(frame_info)
@@ -128,13 +131,17 @@ def decouple(measured, law="donlon2018", geometry=None, edge="zero", max_iter=20
 
 
 def _iterate(step, work, valid, max_iter, tol, callback, record):
+    """Jacobi iterations on the padded frame ``work``; returns the estimate
+    (a view of the frame inside the padded working array)."""
+    r = step.reach
+    ok = step.ok_array(work.shape, valid)
     base = step.to_runtime(work)
-    mask = step.to_runtime(valid.astype(np.uint8)) if valid is not None else None
-    prev = step.to_runtime(work.copy()) if step.on_device else work.copy()
-    nxt = step.empty_like(work.shape)
+    # S_0 = M; the border of both working arrays stays zero (never written)
+    prev = step.to_runtime(work) if step.on_device else work.copy()
+    nxt = step.zeros(work.shape)
     rising = 0
     for q in range(1, max_iter + 1):
-        dmax, smax = step(prev, base, nxt, mask, -1.0)
+        dmax, smax = step(prev, base, nxt, ok, -1.0)
         record.iterations = q
         record.max_delta.append(dmax)
         record.max_signal.append(smax)
@@ -151,8 +158,8 @@ def _iterate(step, work, valid, max_iter, tol, callback, record):
             rising = 0
         prev, nxt = nxt, prev
         if callback is not None:
-            callback(q, step.to_numpy(prev))
+            callback(q, interior(step.to_numpy(prev), r))
         if tol > 0 and dmax <= tol * smax:
             record.converged = True
             break
-    return step.to_numpy(prev)
+    return interior(step.to_numpy(prev), r)

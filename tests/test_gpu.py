@@ -20,3 +20,17 @@ def test_cuda_matches_reference(precision, rtol):
                                        full_output=True)
     assert info.converged
     assert np.abs(signal - truth).max() < (0.05 if precision == "f64" else 0.05 + 6e4 * 1e-6)
+
+
+def test_cuda_tiled_and_f32_exp():
+    """On CUDA: tiled == whole frame, and the f32 path stays accurate."""
+    from ipc_taichi.tiling import decouple_tiled
+
+    rng = np.random.default_rng(2)
+    truth = rng.uniform(0, 60000, (257, 300))
+    measured = couple_reference(truth)
+    whole = ipc_taichi.decouple(measured, arch="cuda", precision="f64")
+    tiled = decouple_tiled(measured, 64, arch="cuda", precision="f64")
+    assert np.abs(tiled - whole).max() <= 1e-12 * whole.max()
+    fast = ipc_taichi.decouple(measured, arch="cuda", precision="f32")
+    assert np.abs(fast - truth).max() < 0.05 + 6e4 * 1e-6

@@ -1,0 +1,43 @@
+"""The benchmark: its NumPy peer is right, and a tiny run writes both result files."""
+
+import json
+
+import numpy as np
+
+from ipc_taichi.bench import decouple_numpy, render_markdown, run_benchmark, star_field
+from ipc_taichi.reference import couple_reference, decouple_reference
+
+
+def test_numpy_peer_matches_reference(rng):
+    for truth in (rng.uniform(0, 60000, (40, 33)), star_field(48, seed=1, n_per_mpix=5000)):
+        measured = couple_reference(truth)
+        ours, iterations, converged = decouple_numpy(measured)
+        ref, ref_iterations, ref_converged, _ = decouple_reference(measured)
+        assert (iterations, converged) == (ref_iterations, ref_converged)
+        np.testing.assert_allclose(ours, ref, rtol=1e-11, atol=1e-9)
+        assert np.abs(ours - truth).max() < 0.05
+
+
+def test_star_field_is_seeded():
+    a, b = star_field(64, seed=4), star_field(64, seed=4)
+    assert np.array_equal(a, b) and a.max() > 300 and a.min() >= 100
+
+
+def test_tiny_run_writes_results(tmp_path):
+    from ipc_taichi.bench import write_results
+
+    results = run_benchmark(sizes=(32,), kinds=("uniform",), repeats=2,
+                            configs=["numpy", "taichi-cpu-f64"], progress=lambda s: None)
+    rows = {r["config"]: r for r in results["rows"]}
+    assert set(rows) == {"numpy", "taichi-cpu-f64"}
+    for r in rows.values():
+        assert r["repeats"] == 2 and len(r["times_s"]) == 2 and r["max_error"] < 0.05
+        assert r["iterations"] == rows["numpy"]["iterations"] and r["peak_bytes"] > 0
+    assert rows["taichi-cpu-f64"]["compile_s"] >= 0
+    assert rows["numpy"]["speedup_vs_numpy"] == 1.0
+    write_results(results, tmp_path)
+    again = json.loads((tmp_path / "results.json").read_text())
+    assert again["rows"][0]["config"] == "numpy"
+    text = (tmp_path / "RESULTS.md").read_text()
+    assert "taichi-cpu-f64" in text and again["machine"]["cpu"] in text
+    assert render_markdown(results) == text
