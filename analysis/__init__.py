@@ -1,0 +1,8 @@
+"""Analysis studies for ipc_taichi: the paper's image simulation, PSF/FWHM study,
+deconvolution comparison and photometry (Donlon, Ninkov & Baum 2018, sections 3-4).
+
+One module per concept: :mod:`analysis.psf` (optical and effective PSFs),
+:mod:`analysis.fwhm` (FWHM estimators), :mod:`analysis.simulate` (the
+flow-chart image simulation), :mod:`analysis.deconvolution` (Lucy-Richardson
+and Wiener baselines). Taichi is only initialised when IPC is applied.
+"""
