@@ -1,0 +1,15 @@
+"""Model-discrepancy workflow: where simulation and measured data disagree,
+which detector effect is missing, and how much of the gap it closes.
+
+See ``docs/discover.md``. Main entry points: :func:`discover` (a lab FITS
+file in, a report out), :class:`DetectorModel` (the ordered chain of effects)
+and :func:`simulate_lab` (the data generator).
+"""
+
+from .effects import EFFECT_NAMES, EFFECTS
+from .labdata import LabData, make_scene, read_lab, simulate_lab, write_lab
+from .model import CHAIN_ORDER, DetectorModel
+from .search import Discovery, discover
+
+__all__ = ["discover", "Discovery", "DetectorModel", "CHAIN_ORDER", "EFFECTS", "EFFECT_NAMES",
+           "LabData", "read_lab", "write_lab", "make_scene", "simulate_lab"]

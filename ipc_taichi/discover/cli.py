@@ -1,0 +1,140 @@
+"""``ipc-taichi discover`` and ``ipc-taichi simulate-lab``."""
+
+import json
+
+from ..errors import IPCInputError
+from ..fitsio import check_output_path
+from .effects import EFFECT_NAMES
+
+
+def add_parser(sub):
+    p = sub.add_parser(
+        "discover", help="find which detector effect the model misses: DATA.fits -> report",
+        description="Compare MEASURED frames with the model's prediction of their SCENE "
+                    "(format: docs/discover.md), name the missing effects one by one (delta "
+                    "BIC), refit, and report the gap from baseline to the noise floor.")
+    p.add_argument("data", metavar="DATA.fits")
+    p.add_argument("--report", metavar="REPORT.json",
+                   help="write the JSON report here (default: print it)")
+    p.add_argument("--figures", metavar="DIR", help="write the figures into this directory")
+    p.add_argument("--seed", type=int, default=0, help="seed of the noise-floor simulations")
+    p.add_argument("--threshold", type=float, default=None,
+                   help="minimum delta BIC to add an effect (default 25)")
+    p.add_argument("--overwrite", action="store_true", help="replace REPORT.json if it exists")
+    p.add_argument("--quiet", action="store_true", help="no progress lines")
+    _runtime_arguments(p)
+    p.set_defaults(run=run_discover)
+
+    s = sub.add_parser(
+        "simulate-lab", help="write a lab file (SCENE/MEASURED pairs) with hidden effects",
+        description="Draw scenes (background, flat patches, hot pixels, point sources), pass "
+                    "them through the detector model with the given hidden effects and write "
+                    "the discover format. Effects: " + ", ".join(EFFECT_NAMES) + ".")
+    s.add_argument("output", metavar="OUT.fits")
+    s.add_argument("--effect", action="append", default=[], metavar="NAME=VALUE",
+                   help="hidden effect (repeatable): diagonal_ipc=ALPHA_DIAG, "
+                        "anisotropic_ipc=FRACTION, second_neighbor_ipc=ALPHA_SECOND, "
+                        "classical_nonlinearity=DEFICIT_AT_50KE, brighter_fatter="
+                        "DEFLECTION_AT_50KE, charge_diffusion=SIGMA_PX, dark_current=E, "
+                        "signal_dependent_ipc=LAW (frames made with LAW, IPCLAW says --law)")
+    s.add_argument("--readnoise", type=float, default=12.0, help="e- RMS (default 12)")
+    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--law", default="donlon2018",
+                   help="the starting model's law, written to IPCLAW (default donlon2018)")
+    s.add_argument("--pairs", type=int, default=2, help="SCENE/MEASURED pairs (default 2)")
+    s.add_argument("--size", default="128", help="frame size N or NYxNX (default 128)")
+    s.add_argument("--no-shot-noise", action="store_true", help="SHOTNOIS = F")
+    s.add_argument("--nan-fraction", type=float, default=0.0,
+                   help="fraction of MEASURED pixels set to NaN (default 0)")
+    s.add_argument("--float32", action="store_true", help="store float32 (default float64)")
+    s.add_argument("--overwrite", action="store_true", help="replace OUT.fits if it exists")
+    _runtime_arguments(s)
+    s.set_defaults(run=run_simulate_lab)
+
+
+def _runtime_arguments(p):
+    r = p.add_argument_group("runtime")
+    r.add_argument("--arch", choices=("auto", "cpu", "cuda"), default=None,
+                   help="Taichi arch (default: $IPC_TAICHI_ARCH or auto)")
+    r.add_argument("--precision", choices=("f64", "f32"), default=None,
+                   help="floating precision (default: $IPC_TAICHI_PRECISION or f64)")
+
+
+def _init(args):
+    from .. import runtime
+
+    runtime.init(args.arch, args.precision)
+
+
+def run_discover(args):
+    import sys
+
+    from .report import write_figures, write_report
+    from .search import EVIDENCE_THRESHOLD, discover
+
+    if args.report:
+        check_output_path(args.report, args.overwrite)  # fail before computing
+    _init(args)
+    say = None if args.quiet else (lambda line: print(f"discover: {line}", file=sys.stderr))
+    threshold = EVIDENCE_THRESHOLD if args.threshold is None else args.threshold
+    result = discover(args.data, seed=args.seed, threshold=threshold, log=say)
+    if args.figures:
+        write_figures(result, args.figures)
+    if args.report:
+        write_report(result.report, args.report, args.overwrite)
+        r = result.report
+        print(f"missing effects: {', '.join(r['missing_effects']) or 'none'}; gap "
+              f"{r['baseline_gap']:.4f} -> {r['final_gap']:.4f} (floor {r['gap_floor']:.4f} "
+              f"+- {r['gap_floor_sigma']:.4f}); report {args.report}")
+    else:
+        from .report import to_json
+
+        print(json.dumps(to_json(result.report), indent=2))
+    return 0
+
+
+def _parse_effects(items):
+    effects = {}
+    for item in items:
+        name, eq, value = item.partition("=")
+        name = name.strip()
+        if not eq or name not in EFFECT_NAMES:
+            raise IPCInputError(f"--effect {item!r}: expected NAME=VALUE with NAME one of "
+                                f"{', '.join(EFFECT_NAMES)}")
+        if name == "signal_dependent_ipc":
+            effects[name] = value.strip()
+            continue
+        try:
+            effects[name] = float(value)
+        except ValueError:
+            raise IPCInputError(f"--effect {item!r}: {value!r} is not a number") from None
+    return effects
+
+
+def _parse_size(text):
+    try:
+        parts = [int(v) for v in str(text).lower().split("x")]
+    except ValueError:
+        raise IPCInputError(f"--size {text!r}: expected N or NYxNX") from None
+    if len(parts) == 1:
+        parts = parts * 2
+    if len(parts) != 2:
+        raise IPCInputError(f"--size {text!r}: expected N or NYxNX")
+    return tuple(parts)
+
+
+def run_simulate_lab(args):
+    import numpy as np
+
+    from .labdata import simulate_lab
+
+    check_output_path(args.output, args.overwrite)
+    effects = _parse_effects(args.effect)
+    _init(args)
+    simulate_lab(args.output, effects, readnoise=args.readnoise, seed=args.seed, law=args.law,
+                 pairs=args.pairs, shape=_parse_size(args.size),
+                 shot_noise=not args.no_shot_noise, nan_fraction=args.nan_fraction,
+                 dtype=np.float32 if args.float32 else np.float64, overwrite=args.overwrite)
+    print(f"wrote {args.output}: {args.pairs} SCENE/MEASURED pairs, IPCLAW {args.law}, "
+          f"READNOIS {args.readnoise:g}")
+    return 0

@@ -1,0 +1,279 @@
+"""The lab data format of ``ipc-taichi discover`` and a generator for it.
+
+Format (``shared/DISCOVERY_FORMAT.md``): a PRIMARY HDU with ``READNOIS``
+(required, e- RMS), ``SHOTNOIS`` (default T) and ``IPCLAW`` (default
+``donlon2018``), then K >= 1 pairs of 2-D image HDUs ``EXTNAME='SCENE'`` and
+``EXTNAME='MEASURED'`` with the same ``EXTVER`` and shape. Data may be
+float32 or float64, either byte order; NaN marks a bad pixel.
+
+:func:`read_lab` validates a file and gives one-line errors naming the HDU.
+:func:`make_scene` draws a lab-like scene: a smooth background, flat patches
+at several levels (non-linearity, dark current), single-pixel events (hot
+pixels, the classic IPC probe) and point sources. :func:`simulate_lab`
+writes a file from scenes through a :class:`~.model.DetectorModel` with
+hidden effects; nothing about the hidden effects is written to the file.
+"""
+
+import math
+import os
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.special import ndtr
+
+from ..errors import IPCInputError, LawError
+from ..fitsio import atomic_output
+from ..laws import get_law
+from .effects import EFFECTS
+from .model import DetectorModel
+
+__all__ = ["LabData", "read_lab", "write_lab", "make_scene", "simulate_lab", "effect_params",
+           "FLAT_LEVELS"]
+
+FLAT_LEVELS = (3000.0, 10000.0, 20000.0, 35000.0, 50000.0)  # e-, one patch each per frame
+_CELL = 8  # px: scene elements sit one per cell, so they stay isolated
+
+
+@dataclass
+class LabData:
+    """A validated lab file: header values and the SCENE/MEASURED pairs.
+
+    ``pairs`` is a list of ``(extver, scene, measured)`` with float64
+    native-endian 2-D arrays (NaN = bad pixel).
+    """
+
+    path: str
+    readnoise: float
+    shot_noise: bool
+    law: str
+    pairs: list
+
+    def model(self):
+        """The starting model the file's header describes."""
+        return DetectorModel(self.law, self.readnoise, self.shot_noise)
+
+
+def _as_bool(value, label):
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    text = str(value).strip().upper()
+    if text in ("T", "TRUE", "1", "Y", "YES"):
+        return True
+    if text in ("F", "FALSE", "0", "N", "NO"):
+        return False
+    raise IPCInputError(f"{label}: SHOTNOIS = {value!r} is not a boolean")
+
+
+def read_lab(path):
+    """Read and validate a lab file; return :class:`LabData`.
+
+    Raises :class:`~ipc_taichi.errors.IPCInputError` with one line naming the
+    file and HDU for: a missing file, a missing or invalid ``READNOIS``, an
+    unknown ``IPCLAW``, a SCENE without its MEASURED (or the reverse), shapes
+    that differ within a pair, an image that is not 2-D, an all-NaN frame.
+    """
+    from astropy.io import fits
+
+    if not os.path.exists(path):
+        raise IPCInputError(f"{path}: no such file")
+    try:
+        hdul = fits.open(path, memmap=False)
+    except Exception as exc:
+        raise IPCInputError(f"{path}: not a readable FITS file ({type(exc).__name__})") from None
+    with hdul:
+        head = hdul[0].header
+        where = f"{path}[PRIMARY]"
+        if "READNOIS" not in head:
+            raise IPCInputError(f"{where}: keyword READNOIS (read noise, e- RMS) is missing")
+        try:
+            readnoise = float(head["READNOIS"])
+        except (TypeError, ValueError):
+            raise IPCInputError(f"{where}: READNOIS = {head['READNOIS']!r} is not a "
+                                "number") from None
+        if not (math.isfinite(readnoise) and readnoise >= 0):
+            raise IPCInputError(f"{where}: READNOIS = {readnoise} must be finite and >= 0")
+        shot_noise = _as_bool(head.get("SHOTNOIS", True), where)
+        law = str(head.get("IPCLAW", "donlon2018")).strip()
+        try:
+            get_law(law)
+        except LawError as exc:
+            raise IPCInputError(f"{where}: IPCLAW {law!r}: {exc}") from None
+        frames = {"SCENE": {}, "MEASURED": {}}
+        for index, hdu in enumerate(hdul):
+            name = str(hdu.header.get("EXTNAME", "")).strip().upper()
+            if name not in frames:
+                continue
+            ver = int(hdu.header.get("EXTVER", 1))
+            label = f"{path}[{name},{ver}]"
+            if ver in frames[name]:
+                raise IPCInputError(f"{label}: EXTVER {ver} appears twice (HDU {index})")
+            if not hdu.is_image or hdu.data is None or hdu.data.ndim != 2:
+                shape = None if getattr(hdu, "data", None) is None else hdu.data.shape
+                raise IPCInputError(f"{label}: expected a 2-D image, got shape {shape}")
+            data = np.asarray(hdu.data, dtype=np.float64)  # native order, BSCALE applied
+            if not np.isfinite(data).any():
+                raise IPCInputError(f"{label}: no finite pixel (all NaN)")
+            frames[name][ver] = (label, data)
+    scenes, measured = frames["SCENE"], frames["MEASURED"]
+    if not scenes and not measured:
+        raise IPCInputError(f"{path}: no SCENE/MEASURED image HDUs")
+    for a, b in (("SCENE", "MEASURED"), ("MEASURED", "SCENE")):
+        for ver in sorted(set(frames[a]) - set(frames[b])):
+            raise IPCInputError(f"{path}[{a},{ver}]: unpaired: no {b} HDU with EXTVER={ver}")
+    pairs = []
+    for ver in sorted(scenes):
+        (slabel, s), (mlabel, m) = scenes[ver], measured[ver]
+        if s.shape != m.shape:
+            raise IPCInputError(f"{mlabel}: shape {m.shape} differs from {slabel} shape {s.shape}")
+        pairs.append((ver, s, m))
+    return LabData(path, readnoise, shot_noise, law, pairs)
+
+
+def write_lab(path, pairs, readnoise, law="donlon2018", shot_noise=True, overwrite=False,
+              dtype=np.float64, history=()):
+    """Write ``pairs`` (``[(scene, measured), ...]``) in the lab format, atomically."""
+    from astropy.io import fits
+
+    primary = fits.PrimaryHDU()
+    primary.header["READNOIS"] = (float(readnoise), "read noise, e- RMS")
+    primary.header["SHOTNOIS"] = (bool(shot_noise), "MEASURED includes shot noise")
+    primary.header["IPCLAW"] = (str(law), "coupling law of the starting model")
+    for line in history:
+        primary.header.add_history(line)
+    hdus = [primary]
+    for k, (scene, measured) in enumerate(pairs, start=1):
+        for name, data in (("SCENE", scene), ("MEASURED", measured)):
+            hdu = fits.ImageHDU(np.asarray(data, dtype=dtype), name=name)
+            hdu.header["EXTVER"] = k
+            hdu.header["BUNIT"] = "electron"
+            hdus.append(hdu)
+    with atomic_output(path, overwrite) as tmp:
+        fits.HDUList(hdus).writeto(tmp)
+
+
+def _gaussian_spot(scene, y0, x0, flux, fwhm):
+    """Add a pixel-integrated circular Gaussian of total ``flux`` centred at (y0, x0)."""
+    sigma = fwhm / (2.0 * math.sqrt(2.0 * math.log(2.0)))
+    r = 4
+    iy, ix = int(round(y0)), int(round(x0))
+    ys = np.arange(iy - r, iy + r + 1)
+    xs = np.arange(ix - r, ix + r + 1)
+    py = ndtr((ys + 0.5 - y0) / sigma) - ndtr((ys - 0.5 - y0) / sigma)
+    px = ndtr((xs + 0.5 - x0) / sigma) - ndtr((xs - 0.5 - x0) / sigma)
+    spot = flux * np.outer(py, px)
+    ny, nx = scene.shape
+    y0c, x0c = max(iy - r, 0), max(ix - r, 0)
+    y1c, x1c = min(iy + r + 1, ny), min(ix + r + 1, nx)
+    scene[y0c:y1c, x0c:x1c] += spot[y0c - (iy - r):y1c - (iy - r), x0c - (ix - r):x1c - (ix - r)]
+
+
+def make_scene(shape, rng, hot_fraction=0.55, source_fraction=0.35):
+    """A lab-like expected-charge scene (electrons).
+
+    A background of 60-200 e- with gradients; one flat 10x10 patch at each
+    level of :data:`FLAT_LEVELS`; and, on a grid of 8x8-pixel cells, either a
+    hot pixel (single-pixel event, 1.5-60 ke-, log-uniform), a point source
+    (pixel-integrated Gaussian, FWHM 1.6-2.6 px, peak 0.5-50 ke-) or nothing.
+    """
+    ny, nx = shape
+    if ny < 48 or nx < 48:
+        raise IPCInputError(f"scene shape {shape}: needs at least 48x48 pixels")
+    yy, xx = np.mgrid[0:ny, 0:nx]
+    scene = 60.0 + 90.0 * xx / nx + 50.0 * yy / ny
+    ncy, ncx = ny // _CELL, nx // _CELL
+    used = np.zeros((ncy, ncx), dtype=bool)
+    for level in FLAT_LEVELS:
+        for _ in range(200):
+            cy, cx = rng.integers(1, ncy - 2), rng.integers(1, ncx - 2)
+            if not used[cy:cy + 2, cx:cx + 2].any():
+                break
+        else:
+            raise IPCInputError(f"scene shape {shape}: too small for the flat patches")
+        used[cy:cy + 2, cx:cx + 2] = True
+        y0, x0 = cy * _CELL + 3, cx * _CELL + 3
+        scene[y0:y0 + 10, x0:x0 + 10] += level
+    for cy in range(ncy):
+        for cx in range(ncx):
+            if used[cy, cx]:
+                continue
+            u = rng.random()
+            yc, xc = cy * _CELL + 4, cx * _CELL + 4
+            if u < hot_fraction:
+                y, x = yc + rng.integers(-1, 2), xc + rng.integers(-1, 2)
+                scene[y, x] += math.exp(rng.uniform(math.log(1500.0), math.log(60000.0)))
+            elif u < hot_fraction + source_fraction:
+                fwhm = rng.uniform(1.6, 2.6)
+                peak = math.exp(rng.uniform(math.log(500.0), math.log(50000.0)))
+                sigma = fwhm / (2.0 * math.sqrt(2.0 * math.log(2.0)))
+                flux = peak * 2.0 * math.pi * sigma ** 2
+                _gaussian_spot(scene, yc + rng.uniform(-0.5, 0.5), xc + rng.uniform(-0.5, 0.5),
+                               flux, fwhm)
+    return scene
+
+
+def effect_params(name, value, law):
+    """Model parameters of a hidden effect from its ``--effect NAME=VALUE`` value.
+
+    ``diagonal_ipc`` / ``second_neighbor_ipc``: absolute coupling at zero
+    signal; ``anisotropic_ipc``: ``(h - v) / mean`` with ``h = 1 + a/2``,
+    ``v = 1 - a/2``; ``classical_nonlinearity``: deficit at 50 ke-;
+    ``brighter_fatter``: deflection at 50 ke-; ``charge_diffusion``: Gaussian
+    sigma in pixels; ``dark_current``: electrons. (``signal_dependent_ipc``
+    takes a law name and is handled by :func:`simulate_lab`.)
+    """
+    v = float(value)
+    return {
+        "diagonal_ipc": {"alpha_diag": v},
+        "anisotropic_ipc": {"weight_horizontal": 1.0 + v / 2, "weight_vertical": 1.0 - v / 2},
+        "second_neighbor_ipc": {"alpha_second": v},
+        "classical_nonlinearity": {"deficit_at_50ke": v, "cubic_term": 0.0},
+        "brighter_fatter": {"deflection_at_50ke": v},
+        "charge_diffusion": {"sigma_px": v},
+        "dark_current": {"dark_e": v},
+    }[name]
+
+
+def simulate_lab(path, effects=None, readnoise=12.0, seed=0, law="donlon2018", pairs=2,
+                 shape=(128, 128), shot_noise=True, nan_fraction=0.0, dtype=np.float64,
+                 overwrite=False):
+    """Write a lab file whose MEASURED frames hide ``effects``.
+
+    Parameters
+    ----------
+    effects : dict
+        ``{effect name: value}`` (see :func:`effect_params`);
+        ``signal_dependent_ipc`` takes a law spec (e.g. ``"donlon2018"``): the
+        frames are made with that law while ``IPCLAW`` says ``law``.
+    law : str
+        The starting model's law, written to ``IPCLAW``.
+    nan_fraction : float
+        Fraction of pixels of each MEASURED frame set to NaN (bad pixels).
+    dtype : numpy dtype
+        On-disk type (FITS stores big-endian).
+
+    Returns
+    -------
+    DetectorModel
+        The model that made the data (for the caller's records; not written).
+    """
+    effects = dict(effects or {})
+    unknown = set(effects) - set(EFFECTS)
+    if unknown:
+        raise IPCInputError(f"unknown effect(s) {', '.join(sorted(unknown))}; "
+                            f"known: {', '.join(EFFECTS)}")
+    data_law = get_law(law)
+    if "signal_dependent_ipc" in effects:
+        data_law = get_law(effects.pop("signal_dependent_ipc"))
+    params = {name: effect_params(name, value, data_law) for name, value in effects.items()}
+    truth = DetectorModel(data_law, readnoise, shot_noise, params)
+    rng = np.random.default_rng(seed)
+    out = []
+    for _ in range(int(pairs)):
+        scene = make_scene(shape, rng)
+        measured = truth.simulate(scene, rng)
+        if nan_fraction > 0:
+            measured[rng.random(measured.shape) < nan_fraction] = np.nan
+        out.append((scene, measured))
+    write_lab(path, out, readnoise, law=str(get_law(law).name if law is not None else law),
+              shot_noise=shot_noise, overwrite=overwrite, dtype=dtype)
+    return truth
