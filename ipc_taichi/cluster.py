@@ -87,6 +87,9 @@ def decouple_files(pairs, options, client, progress=None, task=None):
     options : dict
         Keyword arguments of :func:`ipc_taichi._cli_frames.decouple_file`
         (hdu, overwrite, law, geometry, edge, max_iter, tol, arch, precision).
+        Existing outputs are refused up front unless ``overwrite`` (the check runs
+        on the client: inputs and outputs must be on a file system the client and
+        the workers share).
     client : distributed.Client
     progress : callable, optional
         Called with each :class:`FileResult` as it completes.
@@ -104,14 +107,25 @@ def decouple_files(pairs, options, client, progress=None, task=None):
 
     task = task or decouple_one_file
     run_id = uuid.uuid4().hex[:8]  # unique keys: never reuse an earlier run's result
+    results = [None] * len(pairs)
+    # Refuse existing outputs here, once, before any work. A worker that dies loses
+    # the results it holds and Dask runs those tasks again; such a rerun must be
+    # allowed to replace the output its first run wrote (same content, atomic).
+    overwrite = bool(options.get("overwrite", False))
+    options = dict(options, overwrite=True)
     futures = {}
     for k, (src, dst) in enumerate(pairs):
+        if not overwrite and os.path.exists(dst):
+            results[k] = FileResult(input=src, output=dst, ok=False,
+                                    error=f"{dst}: exists (use --overwrite to replace it)")
+            if progress is not None:
+                progress(results[k])
+            continue
         # pure=False: the same file twice is two tasks; retries=0: a task that
         # killed its worker is not run again on the next one
         fut = client.submit(task, src, dst, options, pure=False, retries=0,
                             key=f"decouple-{run_id}-{k}-{os.path.basename(src)}")
         futures[fut] = k
-    results = [None] * len(pairs)
     for fut in as_completed(list(futures)):
         k = futures[fut]
         src, dst = pairs[k]
