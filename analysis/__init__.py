@@ -4,5 +4,7 @@ deconvolution comparison and photometry (Donlon, Ninkov & Baum 2018, sections 3-
 One module per concept: :mod:`analysis.psf` (optical and effective PSFs),
 :mod:`analysis.fwhm` (FWHM estimators), :mod:`analysis.simulate` (the
 flow-chart image simulation), :mod:`analysis.deconvolution` (Lucy-Richardson
-and Wiener baselines). Taichi is only initialised when IPC is applied.
+and Wiener baselines), :mod:`analysis.photometry` (photutils PSF fitting of
+blended pairs), :mod:`analysis.photometry_forward` (IPC-aware forward-model
+fitting) and :mod:`analysis.binary` (the binary-star grid study). Taichi is only initialised when IPC is applied.
 """
