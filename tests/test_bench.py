@@ -27,7 +27,8 @@ def test_tiny_run_writes_results(tmp_path):
     from ipc_taichi.bench import write_results
 
     results = run_benchmark(sizes=(32,), kinds=("uniform",), repeats=2,
-                            configs=["numpy", "taichi-cpu-f64"], progress=lambda s: None)
+                            configs=["numpy", "taichi-cpu-f64"], progress=lambda s: None,
+                            measure=False)
     rows = {r["config"]: r for r in results["rows"]}
     assert set(rows) == {"numpy", "taichi-cpu-f64"}
     for r in rows.values():
@@ -41,3 +42,24 @@ def test_tiny_run_writes_results(tmp_path):
     text = (tmp_path / "RESULTS.md").read_text()
     assert "taichi-cpu-f64" in text and again["machine"]["cpu"] in text
     assert render_markdown(results) == text
+
+
+def test_floor_measurement_is_positive_and_rendered(cpu):
+    from ipc_taichi.bench import floor_model, machine, measure_floor
+
+    from ipc_taichi import runtime
+
+    try:
+        measured = measure_floor(n=1 << 12, repeats=1)
+    finally:
+        runtime.init("cpu", "f64")  # it leaves Taichi in f32
+    assert set(measured) == {"numpy_pair_ns", "pair_ns_f64", "stream_ns_f64", "pair_ns_f32",
+                             "stream_ns_f32"}
+    assert all(0 < v < 1e4 for v in measured.values())
+    floor = dict(floor_model(None), measured=measured)
+    row = {"config": "taichi-cpu-f64", "size": 64, "kind": "uniform", "median_s": 1e-3,
+           "iterations": 4, "converged": True, "max_error": 0.01, "peak_bytes": 1,
+           "frame_bytes": 64 * 64 * 8, "repeats": 1}
+    text = render_markdown({"machine": machine(), "repeats": 1, "notes": [], "rows": [row],
+                            "floor": floor})
+    assert "the cost of its alphas alone" in text and "H100, 4096x4096 f64" in text
