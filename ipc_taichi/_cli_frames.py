@@ -18,8 +18,6 @@ import datetime
 import os
 import sys
 
-import numpy as np
-
 from . import __version__
 from .coupling import couple
 from .decoupling import decouple

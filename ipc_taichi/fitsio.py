@@ -17,7 +17,8 @@ __all__ = ["read_image", "write_image", "parse_hdu", "atomic_output", "check_out
 
 # structural and scaling keywords that must not be copied onto a new float image
 _STRUCTURAL = {"SIMPLE", "XTENSION", "BITPIX", "NAXIS", "EXTEND", "PCOUNT", "GCOUNT",
-               "BSCALE", "BZERO", "BLANK", "CHECKSUM", "DATASUM", "GROUPS"}
+               "BSCALE", "BZERO", "BLANK", "CHECKSUM", "DATASUM", "GROUPS", "EXTNAME",
+               "EXTVER"}
 
 
 def parse_hdu(text):
@@ -122,13 +123,10 @@ class atomic_output:
         return False
 
 
-def write_image(path, data, header=None, overwrite=False, keywords=None, history=()):
-    """Write ``data`` as the primary HDU of ``path`` atomically.
-
-    The cards of ``header`` (e.g. the input HDU's) are kept, except structural
-    and scaling keywords; ``keywords`` (name -> (value, comment)) and
-    ``history`` lines are added.
-    """
+def output_header(header, keywords=None, history=()):
+    """The header of an output image: the cards of ``header`` (e.g. the input
+    HDU's) except structural, scaling and extension keywords, plus ``keywords``
+    (name -> (value, comment)) and ``history`` lines."""
     from astropy.io import fits
 
     out = fits.Header()
@@ -141,6 +139,19 @@ def write_image(path, data, header=None, overwrite=False, keywords=None, history
         out[key] = (value, comment)
     for line in history:
         out.add_history(line)
-    hdu = fits.PrimaryHDU(data=np.asarray(data), header=out)
+    return out
+
+
+def write_image(path, data, header=None, overwrite=False, keywords=None, history=()):
+    """Write ``data`` as the primary HDU of ``path`` atomically.
+
+    The cards of ``header`` (e.g. the input HDU's) are kept, except structural
+    and scaling keywords; ``keywords`` (name -> (value, comment)) and
+    ``history`` lines are added.
+    """
+    from astropy.io import fits
+
+    hdu = fits.PrimaryHDU(data=np.asarray(data),
+                          header=output_header(header, keywords, history))
     with atomic_output(path, overwrite) as tmp:
         hdu.writeto(tmp, output_verify="silentfix")

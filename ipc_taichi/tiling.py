@@ -307,18 +307,11 @@ def decouple_fits_tiled(input_path, output_path, hdu=None, tile=1024, overwrite=
 def _output_header(header, shape, keywords, history):
     from astropy.io import fits
 
-    structural = {"SIMPLE", "XTENSION", "BITPIX", "EXTEND", "PCOUNT", "GCOUNT", "BSCALE",
-                  "BZERO", "BLANK", "CHECKSUM", "DATASUM", "GROUPS", "EXTNAME", "EXTVER"}
+    from .fitsio import output_header
+
     out = fits.Header([("SIMPLE", True), ("BITPIX", -64), ("NAXIS", len(shape))]
                       + [(f"NAXIS{k + 1}", n) for k, n in enumerate(reversed(shape))])
-    for card in header.cards:
-        if card.keyword in structural or card.keyword.startswith("NAXIS"):
-            continue
-        out.append(card, end=True)
-    for key, (value, comment) in (keywords or {}).items():
-        out[key] = (value, comment)
-    for line in history:
-        out.add_history(line)
+    out.extend(output_header(header, keywords, history), end=True)
     return out
 
 

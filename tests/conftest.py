@@ -46,3 +46,19 @@ def worked_truth():
     from ipc_taichi.demo import worked_example_truth
 
     return worked_example_truth()
+
+
+@pytest.fixture(scope="session")
+def psf():
+    """The JWST-like F405N optical PSF of the analysis studies (poppy)."""
+    from analysis.psf import optical_psf
+
+    return optical_psf()
+
+
+@pytest.fixture(scope="session")
+def epsf_truth(psf):
+    """Its IPC-free effective PSF (photutils ImagePSF)."""
+    from analysis.psf import effective_psf
+
+    return effective_psf(psf, 1.0, stage="truth")

@@ -4,19 +4,9 @@ import numpy as np
 import pytest
 
 from analysis.photometry import StarFit, detect_stars, fit_stars, image_psf, pair_errors
-from analysis.psf import effective_psf, optical_psf, point_source_image
+from analysis.psf import effective_psf, point_source_image
 
 BRIGHT = 4.0e5
-
-
-@pytest.fixture(scope="module")
-def psf():
-    return optical_psf()
-
-
-@pytest.fixture(scope="module")
-def epsf_truth(psf):
-    return effective_psf(psf, 1.0, stage="truth")
 
 
 @pytest.fixture(scope="module")

@@ -6,21 +6,11 @@ import pytest
 import ipc_taichi
 from analysis.photometry import pair_errors
 from analysis.photometry_forward import SceneModel, fit_stars_forward
-from analysis.psf import effective_psf, optical_psf, point_source_image
+from analysis.psf import point_source_image
 
 F1, F2 = 4.0e5, 1.0e5
 X1, Y1, SEP = 12.25, 12.5, 3.0
 SHAPE = (25, 28)
-
-
-@pytest.fixture(scope="module")
-def psf():
-    return optical_psf()
-
-
-@pytest.fixture(scope="module")
-def epsf_truth(psf):
-    return effective_psf(psf, 1.0, stage="truth")
 
 
 @pytest.fixture(scope="module")

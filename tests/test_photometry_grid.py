@@ -7,12 +7,7 @@ import ipc_taichi
 from analysis import binary
 from analysis.binary import (FITS, METHODS, OFFSETS, BinaryGrid, MethodStudy, pair_frames,
                              run_study, summarise)
-from analysis.psf import optical_psf, point_source_image
-
-
-@pytest.fixture(scope="module")
-def psf():
-    return optical_psf()
+from analysis.psf import point_source_image
 
 
 def test_pair_frames_follow_the_flow_chart(psf):

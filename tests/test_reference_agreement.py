@@ -2,7 +2,6 @@
 geometries and edges (1e-10 relative in f64)."""
 
 import numpy as np
-import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 

@@ -6,8 +6,6 @@ mae_{coupled,decoupled,lr,wiener}.
 
 import sys
 
-import numpy as np
-
 from _common import load_npz, pyplot, savefig
 
 LABEL = {"coupled": "IPC present (coupled)", "decoupled": "non-linear iterative decoupling",

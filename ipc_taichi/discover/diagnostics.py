@@ -86,7 +86,6 @@ def find_probes(scene, valid, threshold=500.0, isolation=5):
     (the median of its 11x11 neighbourhood), with no other peak above 5 % of
     its signal within ``isolation`` pixels, and a valid 5x5 window.
     """
-    size = 2 * isolation + 1
     background = ndimage.median_filter(scene, size=11, mode="nearest")
     above = scene - background
     peak = (scene == ndimage.maximum_filter(scene, size=3, mode="nearest")) & (above > threshold)
