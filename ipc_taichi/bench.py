@@ -151,7 +151,8 @@ def measure_floor(n=1 << 22, repeats=5):
     - ``pair_ns``: one pair alpha of ``donlon2018`` (2 inlined exp + 1 sqrt,
       the kernels' own :func:`ipc_taichi._kernels.make_exp`) over ``n``
       independent pairs in a parallel Taichi loop, ns per pair (wall), f64 and
-      f32: the transcendental floor of scalar code.
+      f32: what the alphas alone cost in scalar code (a reference point, not a
+      strict bound: the fused sweep overlaps them better than this loop does).
     - ``stream_ns``: ``o = a + b`` over ``n`` elements (the 24 bytes per pixel
       in f64 that an iteration must move, 12 in f32), ns per element (wall):
       the memory floor.
