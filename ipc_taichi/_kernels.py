@@ -191,18 +191,27 @@ def get_step_kernel(config):
             a *= ti.cast(ok[y, x] * ok[y + dy, x + dx], real)
         return a
 
+    @ti.func
+    def pair_flow(flow, src: ti.template(), w: ti.template(), y, x, sv, k: ti.template(),
+                  a_plus, a_minus):
+        """``flow`` plus what pixel (y, x) gains through offset k: the neighbour
+        at p + u sends by -u (weight w[k, 1]), p sends to it by +u (w[k, 0]);
+        likewise with the neighbour at p - u."""
+        dy, dx = ti.static(offsets[k])
+        wp = w[k, 0]  # weight of the move p -> p+u
+        wm = w[k, 1]  # weight of the move p -> p-u
+        return (flow + a_plus * (wm * src[y + dy, x + dx] - wp * sv)
+                + a_minus * (wp * src[y - dy, x - dx] - wm * sv))
+
+    # the two layouts take the same arguments (the pixel layout ignores ring and strip)
+    frame = ti.types.ndarray(dtype=real, ndim=2)
+    vector = ti.types.ndarray(dtype=real, ndim=1)
+    mask = ti.types.ndarray(dtype=ti.u8, ndim=2)
+    scratch = ti.types.ndarray(dtype=real, ndim=4)
+
     @ti.kernel
-    def step_sweep(src: ti.types.ndarray(dtype=real, ndim=2),
-                   base: ti.types.ndarray(dtype=real, ndim=2),
-                   dst: ti.types.ndarray(dtype=real, ndim=2),
-                   ok: ti.types.ndarray(dtype=ti.u8, ndim=2),
-                   p: ti.types.ndarray(dtype=real, ndim=1),
-                   w: ti.types.ndarray(dtype=real, ndim=2),
-                   table: ti.types.ndarray(dtype=real, ndim=2),
-                   sign: real,
-                   stats: ti.types.ndarray(dtype=real, ndim=1),
-                   ring: ti.types.ndarray(dtype=real, ndim=4),
-                   strip: ti.i32):
+    def step_sweep(src: frame, base: frame, dst: frame, ok: mask, p: vector, w: frame,
+                   table: frame, sign: real, stats: vector, ring: scratch, strip: ti.i32):
         h = src.shape[0] - 2 * r
         wd = src.shape[1] - 2 * r
         # One strip per task. Taichi 1.7's CPU backend hands out a parallel
@@ -248,8 +257,6 @@ def get_step_kernel(config):
                         flow = ti.cast(0.0, real)
                         for k in ti.static(range(n_off)):
                             dy, dx = ti.static(offsets[k])
-                            wp = w[k, 0]  # weight of the move p -> p+u
-                            wm = w[k, 1]  # weight of the move p -> p-u
                             a_plus = pair(src, ok, p, table, y, x, dy, dx)
                             a_minus = ti.cast(0.0, real)
                             if ti.static(dy == 0):
@@ -262,9 +269,7 @@ def get_step_kernel(config):
                                 kv = ti.static(ring_index[k])
                                 a_minus = ring[s, kv, (i - dy + r) % depth, x - dx]
                                 ring[s, kv, (i + r) % depth, x] = a_plus
-                            # neighbour at p + u sends by -u (wm); p sends to it by +u (wp)
-                            flow += a_plus * (wm * src[y + dy, x + dx] - wp * sv)
-                            flow += a_minus * (wp * src[y - dy, x - dx] - wm * sv)
+                            flow = pair_flow(flow, src, w, y, x, sv, k, a_plus, a_minus)
                         v = base[y, x] + sign * flow
                         dst[y, x] = v
                         dmax = ti.max(dmax, ti.abs(v - sv))
@@ -273,17 +278,8 @@ def get_step_kernel(config):
                 ti.atomic_max(stats[1], smax)
 
     @ti.kernel
-    def step_pixel(src: ti.types.ndarray(dtype=real, ndim=2),
-                   base: ti.types.ndarray(dtype=real, ndim=2),
-                   dst: ti.types.ndarray(dtype=real, ndim=2),
-                   ok: ti.types.ndarray(dtype=ti.u8, ndim=2),
-                   p: ti.types.ndarray(dtype=real, ndim=1),
-                   w: ti.types.ndarray(dtype=real, ndim=2),
-                   table: ti.types.ndarray(dtype=real, ndim=2),
-                   sign: real,
-                   stats: ti.types.ndarray(dtype=real, ndim=1),
-                   ring: ti.types.ndarray(dtype=real, ndim=4),
-                   strip: ti.i32):
+    def step_pixel(src: frame, base: frame, dst: frame, ok: mask, p: vector, w: frame,
+                   table: frame, sign: real, stats: vector, ring: scratch, strip: ti.i32):
         h = src.shape[0] - 2 * r
         wd = src.shape[1] - 2 * r
         threads = ti.min(wd, THREADS_PER_ROW)
@@ -297,12 +293,9 @@ def get_step_kernel(config):
                 flow = ti.cast(0.0, real)
                 for k in ti.static(range(n_off)):
                     dy, dx = ti.static(offsets[k])
-                    wp = w[k, 0]
-                    wm = w[k, 1]
                     a_plus = pair(src, ok, p, table, y, x, dy, dx)
                     a_minus = pair(src, ok, p, table, y - dy, x - dx, dy, dx)
-                    flow += a_plus * (wm * src[y + dy, x + dx] - wp * sv)
-                    flow += a_minus * (wp * src[y - dy, x - dx] - wm * sv)
+                    flow = pair_flow(flow, src, w, y, x, sv, k, a_plus, a_minus)
                 v = base[y, x] + sign * flow
                 dst[y, x] = v
                 dmax = ti.max(dmax, ti.abs(v - sv))
