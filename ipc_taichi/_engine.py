@@ -13,10 +13,6 @@ import numpy as np
 from . import runtime
 from ._kernels import KernelConfig, get_step_kernel
 from .errors import IPCInputError
-from .geometry import Geometry
-from .laws import check_convergence, get_law
-
-EDGES = ("zero", "isolated")
 
 # rows per task of the CPU sweep: a strip re-evaluates the dy-row pairs above
 # it (1/STRIP_ROWS extra work for nearest neighbours) and 2 cores need a few
@@ -24,8 +20,17 @@ EDGES = ("zero", "isolated")
 STRIP_ROWS = 32
 
 
-def as_stack(data, what):
-    """Validate ``data`` as a 2-D frame or a 3-D stack; return (array, was_2d)."""
+def as_stack(data, what, mask=None):
+    """Validate ``data`` (and ``mask``) as a 2-D frame or a 3-D stack.
+
+    Returns ``(array, mask, was_2d)``: the array as a stack ``(n, ny, nx)`` and
+    the boolean mask (True = pixel not trusted) broadcast to it, or ``None``.
+    A NumPy masked array contributes its own mask.
+    """
+    if isinstance(data, np.ma.MaskedArray):
+        own = np.ma.getmaskarray(data)
+        mask = own if mask is None else (own | np.asarray(mask, dtype=bool))
+        data = data.data
     try:
         arr = np.asarray(data)
     except Exception as exc:  # ragged lists and the like
@@ -37,24 +42,62 @@ def as_stack(data, what):
                             f"(n, ny, nx), got {arr.ndim}-D shape {arr.shape}")
     if arr.size == 0:
         raise IPCInputError(f"{what}: empty array of shape {arr.shape}")
-    if arr.ndim == 2:
-        return arr[np.newaxis], True
-    return arr, False
+    if mask is not None:
+        mask = np.asarray(mask)
+        if mask.dtype != bool:
+            raise IPCInputError(f"{what}: mask must be boolean (True = not trusted), got "
+                                f"dtype {mask.dtype}")
+        try:
+            mask = np.broadcast_to(mask, arr.shape)
+        except ValueError:
+            raise IPCInputError(f"{what}: mask of shape {mask.shape} does not fit data of "
+                                f"shape {arr.shape}") from None
+        if not mask.any():
+            mask = None
+    was_2d = arr.ndim == 2
+    if was_2d:
+        arr = arr[np.newaxis]
+        mask = None if mask is None else mask[np.newaxis]
+    return arr, mask, was_2d
 
 
-def prepare_frame(frame, dtype, reach=0):
+def prepare_frame(frame, dtype, reach=0, mask=None):
     """The frame in ``dtype`` inside a zero border of ``reach`` pixels, bad
-    pixels zeroed, and the validity mask of the frame (``None`` when every
-    pixel is finite). Returns ``(padded, valid)``; one copy of the frame."""
+    pixels (non-finite, or True in ``mask``) zeroed, and the validity mask of
+    the frame (``None`` when every pixel is good). Returns ``(padded, valid)``;
+    one copy of the frame."""
     ny, nx = frame.shape
     padded = np.zeros((ny + 2 * reach, nx + 2 * reach), dtype=dtype)
     inner = interior(padded, reach)
     inner[...] = frame
     valid = np.isfinite(inner)
+    if mask is not None:
+        valid &= ~mask
     if valid.all():
         return padded, None
     inner[~valid] = 0.0
     return padded, valid
+
+
+def restore_bad(out, frame, valid):
+    """Put the bad pixels back into a result frame: masked pixels keep their
+    input value, non-finite pixels become NaN."""
+    if valid is None:
+        return out
+    bad = ~valid
+    kept = np.asarray(frame)[bad].astype(out.dtype)
+    kept[~np.isfinite(kept)] = np.nan
+    out[bad] = kept
+    return out
+
+
+def as_result(stack, was_2d, like):
+    """The result stack shaped and typed as the input was given: a frame for a
+    2-D input, a masked array (with the input's mask) for a masked input."""
+    result = stack[0] if was_2d else stack
+    if isinstance(like, np.ma.MaskedArray):
+        result = np.ma.MaskedArray(result, mask=np.ma.getmaskarray(like).copy())
+    return result
 
 
 def interior(padded, reach):
@@ -62,18 +105,6 @@ def interior(padded, reach):
     if reach == 0:
         return padded
     return padded[reach:-reach, reach:-reach]
-
-
-def resolve_model(law, geometry, edge):
-    law = get_law(law)
-    if geometry is None:
-        geometry = Geometry.nearest()
-    elif not isinstance(geometry, Geometry):
-        geometry = Geometry.parse(geometry) if isinstance(geometry, str) else Geometry(geometry)
-    if edge not in EDGES:
-        raise IPCInputError(f"edge must be one of {', '.join(EDGES)}, got {edge!r}")
-    check_convergence(law, geometry)
-    return law, geometry, edge
 
 
 def default_layout(arch):
@@ -85,7 +116,8 @@ class Stepper:
     """Runs ``dst = base + sign * flow(src)`` for one law/geometry/edge on
     padded arrays (see :func:`prepare_frame`)."""
 
-    def __init__(self, law, geometry, edge, masked, info, layout=None):
+    def __init__(self, model, masked, info, layout=None):
+        law, geometry, edge = model.law, model.geometry, model.edge
         half = geometry.half_stencil()
         self.info = info
         self.dtype = info.dtype
@@ -169,5 +201,5 @@ def start(arch, precision):
     return runtime.init(arch, precision)
 
 
-__all__ = ["as_stack", "prepare_frame", "interior", "resolve_model", "Stepper", "start",
-           "STRIP_ROWS", "default_layout"]
+__all__ = ["as_stack", "prepare_frame", "restore_bad", "as_result", "interior", "Stepper",
+           "start", "STRIP_ROWS", "default_layout"]

@@ -14,18 +14,21 @@ Edge rules
     neighbours. Total charge is conserved exactly.
 
 Bad pixels (NaN or inf) neither give nor take charge and stay NaN in the
-output; they are treated like the outside of an ``isolated`` frame.
+output; they are treated like the outside of an ``isolated`` frame. Pixels
+flagged in ``mask`` (e.g. from a DQ array) likewise neither give nor take
+charge, and keep their input value.
 """
 
 import numpy as np
 
-from ._engine import Stepper, as_stack, interior, prepare_frame, resolve_model, start
+from ._engine import Stepper, as_result, as_stack, interior, prepare_frame, restore_bad, start
+from .model import CouplingModel
 
 __all__ = ["couple"]
 
 
 def couple(signal, law="donlon2018", geometry=None, edge="zero", arch=None, precision=None,
-           layout=None):
+           layout=None, *, model=None, mask=None):
     """Apply signal-dependent IPC to ``signal`` (2-D frame or 3-D stack).
 
     Parameters
@@ -44,11 +47,19 @@ def couple(signal, law="donlon2018", geometry=None, edge="zero", arch=None, prec
     layout : {None, "sweep", "pixel"}
         Kernel loop layout (see :mod:`ipc_taichi._kernels`); ``None`` picks the
         one that suits the arch. Results agree to rounding.
+    model : CouplingModel, optional
+        The law, geometry and edge as one resolved value (then leave ``law``,
+        ``geometry`` and ``edge`` at their defaults).
+    mask : array_like of bool, optional
+        True where a pixel is not trusted (same shape as a frame or as the
+        stack): it neither gives nor takes charge and keeps its input value.
+        A NumPy masked array's own mask is used the same way.
 
     Returns
     -------
     measured : ndarray
-        Same shape, in the runtime precision (float64 by default).
+        Same shape, in the runtime precision (float64 by default); a masked
+        array for a masked input.
 
     Examples
     --------
@@ -58,22 +69,22 @@ def couple(signal, law="donlon2018", geometry=None, edge="zero", arch=None, prec
     >>> float(round(m[2, 2], 6)), float(round(m[2, 3], 6))
     (9600.0, 100.0)
     """
-    stack, was_2d = as_stack(signal, "signal")
-    law, geometry, edge = resolve_model(law, geometry, edge)
+    stack, bad, was_2d = as_stack(signal, "signal", mask)
+    model = CouplingModel.from_arguments(law, geometry, edge, model)
     info = start(arch, precision)
     out = np.empty(stack.shape, dtype=info.dtype)
     steppers = {}
     for k, frame in enumerate(stack):
-        work, valid = prepare_frame(frame, info.dtype, geometry.reach)
+        work, valid = prepare_frame(frame, info.dtype, model.reach,
+                                    None if bad is None else bad[k])
         masked = valid is not None
         if masked not in steppers:
-            steppers[masked] = Stepper(law, geometry, edge, masked, info, layout=layout)
+            steppers[masked] = Stepper(model, masked, info, layout=layout)
         step = steppers[masked]
         ok = step.ok_array(work.shape, valid)
         src = step.to_runtime(work)
         dst = step.zeros(work.shape)
         step(src, src, dst, ok, +1.0)
         out[k] = interior(step.to_numpy(dst), step.reach)
-        if masked:
-            out[k][~valid] = np.nan
-    return out[0] if was_2d else out
+        restore_bad(out[k], frame, valid)
+    return as_result(out, was_2d, signal)

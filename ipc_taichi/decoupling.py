@@ -4,20 +4,20 @@
 the forward model evaluated with alpha on the current estimate. Every pixel of
 ``S_q`` depends only on ``S_{q-1}`` (Jacobi, not Gauss-Seidel: no in-place race).
 
-Stopping rule (paper section 2.4): stop after ``max_iter`` (20) iterations or
-as soon as ``max|S_q - S_{q-1}| <= tol * max|S_q|`` (``tol = 1e-5``, i.e.
-0.001 %). On the paper's worked example this stops after 4 iterations.
+The stopping and divergence rules are those of :mod:`ipc_taichi.iteration`
+(the paper's: at most 20 iterations, stop when ``max|S_q - S_{q-1}| <= 1e-5
+max|S_q|``). On the paper's worked example this stops after 4 iterations.
 Information moves one pixel per iteration and per unit of geometry reach,
 which is what makes halo tiling exact.
 """
 
-import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from ._engine import Stepper, as_stack, interior, prepare_frame, resolve_model, start
-from .errors import ConvergenceWarning, DivergenceError, IPCInputError
+from . import iteration
+from ._engine import Stepper, as_result, as_stack, interior, prepare_frame, restore_bad, start
+from .model import CouplingModel
 
 __all__ = ["decouple", "DecoupleInfo"]
 
@@ -51,8 +51,9 @@ class DecoupleInfo:
     edge: str = ""
 
 
-def decouple(measured, law="donlon2018", geometry=None, edge="zero", max_iter=20, tol=1e-5,
-             arch=None, precision=None, callback=None, full_output=False, layout=None):
+def decouple(measured, law="donlon2018", geometry=None, edge="zero", max_iter=iteration.MAX_ITER,
+             tol=iteration.TOL, arch=None, precision=None, callback=None, full_output=False,
+             layout=None, *, model=None, mask=None):
     """Remove signal-dependent IPC from ``measured`` (2-D frame or 3-D stack).
 
     Parameters
@@ -76,11 +77,19 @@ def decouple(measured, law="donlon2018", geometry=None, edge="zero", max_iter=20
     layout : {None, "sweep", "pixel"}
         Kernel loop layout (see :mod:`ipc_taichi._kernels`); ``None`` picks the
         one that suits the arch. Results agree to rounding.
+    model : CouplingModel, optional
+        The law, geometry and edge as one resolved value (then leave ``law``,
+        ``geometry`` and ``edge`` at their defaults).
+    mask : array_like of bool, optional
+        True where a pixel is not trusted (e.g. DQ DO_NOT_USE), shaped like a
+        frame or like the stack: it neither gives nor takes charge and keeps
+        its measured value. A NumPy masked array's own mask is used the same way.
 
     Returns
     -------
     signal : ndarray
-        The decoupled frame(s) in the runtime precision.
+        The decoupled frame(s) in the runtime precision; a masked array for a
+        masked input.
     info : DecoupleInfo or list of DecoupleInfo
         Only with ``full_output=True``.
 
@@ -94,37 +103,29 @@ def decouple(measured, law="donlon2018", geometry=None, edge="zero", max_iter=20
     ConvergenceWarning
         ``max_iter`` was reached before the stopping rule (``tol > 0``).
     """
-    stack, was_2d = as_stack(measured, "measured")
-    max_iter = int(max_iter)
-    if max_iter < 1:
-        raise IPCInputError(f"max_iter must be >= 1, got {max_iter}")
-    if not (np.isfinite(tol) and tol >= 0):
-        raise IPCInputError(f"tol must be finite and >= 0, got {tol}")
-    law, geometry, edge = resolve_model(law, geometry, edge)
+    stack, bad, was_2d = as_stack(measured, "measured", mask)
+    max_iter, tol = iteration.check_arguments(max_iter, tol)
+    model = CouplingModel.from_arguments(law, geometry, edge, model)
     info = start(arch, precision)
     out = np.empty(stack.shape, dtype=info.dtype)
     infos = []
     steppers = {}
     for k, frame in enumerate(stack):
-        work, valid = prepare_frame(frame, info.dtype, geometry.reach)
+        work, valid = prepare_frame(frame, info.dtype, model.reach,
+                                    None if bad is None else bad[k])
         masked = valid is not None
         if masked not in steppers:
-            steppers[masked] = Stepper(law, geometry, edge, masked, info, layout=layout)
-        frame_info = DecoupleInfo(arch=info.arch, precision=info.precision, law=law.describe(),
-                                  geometry=geometry.describe(), edge=edge)
+            steppers[masked] = Stepper(model, masked, info, layout=layout)
+        frame_info = DecoupleInfo(arch=info.arch, precision=info.precision,
+                                  law=model.law.describe(), geometry=model.geometry.describe(),
+                                  edge=model.edge)
         out[k] = _iterate(steppers[masked], work, valid, max_iter, tol, callback, frame_info)
         del work
-        if masked:
-            out[k][~valid] = np.nan
+        restore_bad(out[k], frame, valid)
         infos.append(frame_info)
-        if tol > 0 and not frame_info.converged:
-            where = f"frame {k}: " if not was_2d else ""
-            warnings.warn(
-                f"{where}decouple did not meet the stopping rule in {max_iter} iterations "
-                f"(last max|dS| = {frame_info.max_delta[-1]:.3g}, "
-                f"tol*max|S| = {tol * frame_info.max_signal[-1]:.3g})",
-                ConvergenceWarning, stacklevel=2)
-    signal = out[0] if was_2d else out
+        iteration.warn_unconverged(frame_info, max_iter, tol,
+                                   where="" if was_2d else f"frame {k}: ")
+    signal = as_result(out, was_2d, measured)
     if full_output:
         return signal, (infos[0] if was_2d else infos)
     return signal
@@ -139,27 +140,16 @@ def _iterate(step, work, valid, max_iter, tol, callback, record):
     # S_0 = M; the border of both working arrays stays zero (never written)
     prev = step.to_runtime(work) if step.on_device else work.copy()
     nxt = step.zeros(work.shape)
-    rising = 0
     for q in range(1, max_iter + 1):
         dmax, smax = step(prev, base, nxt, ok, -1.0)
         record.iterations = q
         record.max_delta.append(dmax)
         record.max_signal.append(smax)
-        if not (np.isfinite(dmax) and np.isfinite(smax)):
-            raise DivergenceError(f"decouple diverged at iteration {q}: non-finite values; "
-                                  "the law/geometry is too strong for this data")
-        if q > 1 and dmax > record.max_delta[-2]:
-            rising += 1
-            if rising >= 3:
-                raise DivergenceError(
-                    f"decouple diverged: max|dS| grew 3 iterations running "
-                    f"({', '.join(f'{d:.3g}' for d in record.max_delta[-4:])})")
-        else:
-            rising = 0
+        iteration.check_divergence(record.max_delta, record.max_signal)
         prev, nxt = nxt, prev
         if callback is not None:
             callback(q, interior(step.to_numpy(prev), r))
-        if tol > 0 and dmax <= tol * smax:
+        if iteration.met(dmax, smax, tol):
             record.converged = True
             break
     return interior(step.to_numpy(prev), r)

@@ -6,7 +6,8 @@ from astropy.io import fits
 
 import ipc_taichi
 from ipc_taichi.bench import star_field
-from ipc_taichi.tiling import decouple_fits_tiled, decouple_tiled, halo_for, tiles
+from ipc_taichi._tiled_fits import decouple_fits_tiled
+from ipc_taichi.tiling import decouple_tiled, halo_for, tiles
 
 
 @pytest.fixture(scope="module")
@@ -32,17 +33,15 @@ def test_tiled_equals_whole_frame_with_stopping_rule(cpu, star_frame, tile):
 
 def test_halo_matters(cpu, star_frame):
     """Without the halo the seams are wrong: the test above can fail."""
-    from ipc_taichi.tiling import _core_maxima
-    from ipc_taichi._engine import resolve_model
+    from ipc_taichi.model import CouplingModel
+    from ipc_taichi.tiling import tile_maxima
 
     measured = np.nan_to_num(ipc_taichi.couple(star_frame))
     whole = ipc_taichi.decouple(measured, max_iter=4, tol=0)
-    model = resolve_model("donlon2018", None, "zero")
+    model = CouplingModel.resolve("donlon2018")
     core = (slice(40, 80), slice(40, 80))
-    exact, _, _ = _core_maxima(lambda w: measured[w], measured.shape, core, 4, 4, model,
-                               None, None)
-    short, _, _ = _core_maxima(lambda w: measured[w], measured.shape, core, 2, 4, model,
-                               None, None)
+    exact, _, _ = tile_maxima(lambda w: measured[w], measured.shape, core, 4, 4, model)
+    short, _, _ = tile_maxima(lambda w: measured[w], measured.shape, core, 2, 4, model)
     assert np.abs(exact - whole[core]).max() <= 1e-12 * whole.max()
     assert np.abs(short - whole[core]).max() > 1e-3
 
