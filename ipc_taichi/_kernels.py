@@ -50,7 +50,7 @@ from dataclasses import dataclass
 
 from . import runtime
 
-__all__ = ["KernelConfig", "get_step_kernel", "LAYOUTS"]
+__all__ = ["KernelConfig", "get_step_kernel", "make_alpha", "make_exp", "LAYOUTS"]
 
 LAYOUTS = ("sweep", "pixel")
 THREADS_PER_ROW = 128  # ``pixel`` layout: threads sharing one row
@@ -135,31 +135,21 @@ def make_exp(real_is_f64):
     return exp
 
 
-@functools.lru_cache(maxsize=None)
-def get_step_kernel(config):
-    """Build (once per config) the Taichi kernel for one coupling step."""
+def make_alpha(law_kind, precision, fast_exp=True):
+    """The Taichi device function ``alpha(s, n, p, table)`` of a law kind: the
+    one device-side evaluation of the coupling law, used by both kernel
+    layouts and timed by the benchmark's floor measurement.
+
+    ``p`` holds :meth:`ParametricLaw.kernel_params` (amplitudes, reciprocal
+    scales, floor) or the table's grid for a :class:`TabulatedLaw`
+    (``table``). ``fast_exp`` uses the inlined :func:`make_exp` (the CPU's
+    scalar code gains 1.7x); otherwise the arch's own ``exp`` (CUDA's is fast).
+    """
     import taichi as ti
 
-    if config.layout not in LAYOUTS:
-        raise ValueError(f"unknown kernel layout {config.layout!r}")
-    real = ti.f64 if config.precision == "f64" else ti.f32
-    offsets = config.offsets
-    n_off = len(offsets)
-    r = config.reach
-    table_law = config.law_kind == "table"
-    uses_ok = config.uses_ok
-    vertical = config.vertical
-    depth = config.ring_depth
-    sweep = config.layout == "sweep"
-    fast_exp = make_exp(config.precision == "f64")
-    # static bookkeeping for the sweep, worked out here in plain Python
-    carry_at = tuple(sum(ddx for ddy, ddx in offsets[:k] if ddy == 0) for k in range(n_off))
-    n_carry = max(1, sum(dx for dy, dx in offsets if dy == 0))
-    ring_index = tuple(vertical.index(k) if k in vertical else -1 for k in range(n_off))
-    # columns of a ring row that pixels of later rows read besides 0 .. width-1
-    left_extra = tuple(tuple(range(-offsets[k][1], 0)) for k in vertical)
-    right_extra = tuple(max(0, -offsets[k][1]) for k in vertical)
-    prologue_lo = tuple(min(0, -offsets[k][1]) for k in vertical)
+    real = ti.f64 if precision == "f64" else ti.f32
+    table_law = law_kind == "table"
+    exp = make_exp(precision == "f64") if fast_exp else ti.exp
 
     @ti.func
     def alpha(s, n, p: ti.template(), table: ti.template()):
@@ -174,13 +164,39 @@ def get_step_kernel(config):
             fv = v - j0
             a = ((1 - fu) * ((1 - fv) * table[i0, j0] + fv * table[i0, j0 + 1])
                  + fu * ((1 - fv) * table[i0 + 1, j0] + fv * table[i0 + 1, j0 + 1]))
-        elif ti.static(sweep):
-            a = (p[0] * fast_exp(-ti.abs(s - n) * p[1])
-                 + p[2] * fast_exp(-ti.sqrt(s * s + n * n) * p[3]) + p[4])
         else:
-            a = (p[0] * ti.exp(-ti.abs(s - n) * p[1])
-                 + p[2] * ti.exp(-ti.sqrt(s * s + n * n) * p[3]) + p[4])
+            a = (p[0] * exp(-ti.abs(s - n) * p[1])
+                 + p[2] * exp(-ti.sqrt(s * s + n * n) * p[3]) + p[4])
         return a
+
+    return alpha
+
+
+@functools.lru_cache(maxsize=None)
+def get_step_kernel(config):
+    """Build (once per config) the Taichi kernel for one coupling step."""
+    import taichi as ti
+
+    if config.layout not in LAYOUTS:
+        raise ValueError(f"unknown kernel layout {config.layout!r}")
+    real = ti.f64 if config.precision == "f64" else ti.f32
+    offsets = config.offsets
+    n_off = len(offsets)
+    r = config.reach
+    uses_ok = config.uses_ok
+    vertical = config.vertical
+    depth = config.ring_depth
+    sweep = config.layout == "sweep"
+    # static bookkeeping for the sweep, worked out here in plain Python
+    carry_at = tuple(sum(ddx for ddy, ddx in offsets[:k] if ddy == 0) for k in range(n_off))
+    n_carry = max(1, sum(dx for dy, dx in offsets if dy == 0))
+    ring_index = tuple(vertical.index(k) if k in vertical else -1 for k in range(n_off))
+    # columns of a ring row that pixels of later rows read besides 0 .. width-1
+    left_extra = tuple(tuple(range(-offsets[k][1], 0)) for k in vertical)
+    right_extra = tuple(max(0, -offsets[k][1]) for k in vertical)
+    prologue_lo = tuple(min(0, -offsets[k][1]) for k in vertical)
+
+    alpha = make_alpha(config.law_kind, config.precision, fast_exp=sweep)
 
     @ti.func
     def pair(src: ti.template(), ok: ti.template(), p: ti.template(), table: ti.template(),

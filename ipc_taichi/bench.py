@@ -1,6 +1,7 @@
 """``ipc-taichi bench`` (``make bench``): decoupling speed, side by side.
 
-One run times, on the same frames, the plain-NumPy peer (:func:`decouple_numpy`),
+One run times, on the same frames, the plain-NumPy peer
+(:func:`ipc_taichi.reference.decouple_numpy`),
 the paper-faithful NumPy reference (:func:`ipc_taichi.reference.decouple_reference`),
 Taichi on the CPU in f64 and f32 and, when a CUDA GPU is present, Taichi on
 CUDA in f64 and f32. Frames: uniform 0..60000 (the paper's random frame) and
@@ -27,102 +28,17 @@ import time
 
 import numpy as np
 
+from .datasets import star_field, uniform_frame
 from .laws import donlon2018
+from .reference import decouple_numpy
 
-__all__ = ["decouple_numpy", "star_field", "run_benchmark", "measure_floor", "add_parser"]
+__all__ = ["run_benchmark", "measure_floor"]
 
 SIZES = (512, 2048, 4096)
 KINDS = ("uniform", "stars")
 # repeats of the slow NumPy paths at the largest sizes (said in the output)
 NUMPY_REPEAT_CAP = {4096: 2}
 REFERENCE_MAX_SIZE = 2048
-
-
-def decouple_numpy(measured, law=None, max_iter=20, tol=1e-5):
-    """The Jacobi decoupler in plain vectorised NumPy, as fast as we can make it.
-
-    Nearest neighbours with weight 1, zero edge, a :class:`ParametricLaw`.
-    Like the Taichi kernels it evaluates alpha once per neighbour *pair*
-    (alpha is symmetric): with ``T = alpha(S_a, S_b) (S_b - S_a)`` on every
-    horizontal and vertical pair, ``flow = T[right pair] - T[left pair] +
-    T[lower pair] - T[upper pair]``. Work arrays are allocated once and all
-    operations write in place. Single-threaded, as NumPy is.
-
-    Returns ``(signal, iterations, converged)``.
-    """
-    law = law or donlon2018()
-    m = np.asarray(measured, dtype=np.float64)
-    ny, nx = m.shape
-    amp_d, inv_d, amp_l, inv_l, floor = law.kernel_params()
-    padded = np.zeros((ny + 2, nx + 2))
-    padded[1:-1, 1:-1] = m
-    nxt = np.empty_like(m)
-    # pair arrays: horizontal (ny, nx + 1), vertical (ny + 1, nx)
-    bufs = {}
-    for name, shape in (("h", (ny, nx + 1)), ("v", (ny + 1, nx))):
-        bufs[name] = [np.empty(shape) for _ in range(4)]
-    converged = False
-    q = 0
-    for q in range(1, int(max_iter) + 1):
-        flow = nxt  # reuse: nxt holds the flow until the update below
-        flow[...] = 0.0
-        for name, a, b in (("h", padded[1:-1, :-1], padded[1:-1, 1:]),
-                           ("v", padded[:-1, 1:-1], padded[1:, 1:-1])):
-            diff, t1, t2, tr = bufs[name]
-            np.subtract(b, a, out=diff)                      # S_b - S_a
-            np.abs(diff, out=t1)
-            np.multiply(t1, -inv_d, out=t1)
-            np.exp(t1, out=t1)                               # exp(-|S-N|/sd)
-            np.multiply(a, a, out=t2)
-            np.multiply(b, b, out=tr)
-            np.add(t2, tr, out=t2)
-            np.sqrt(t2, out=t2)
-            np.multiply(t2, -inv_l, out=t2)
-            np.exp(t2, out=t2)                               # exp(-sqrt(S^2+N^2)/sl)
-            np.multiply(t1, amp_d, out=t1)
-            np.multiply(t2, amp_l, out=t2)
-            np.add(t1, t2, out=t1)
-            np.add(t1, floor, out=t1)                        # alpha of the pair
-            np.multiply(t1, diff, out=tr)                    # net transfer a <- b
-            if name == "h":
-                flow += tr[:, 1:]
-                flow -= tr[:, :-1]
-            else:
-                flow += tr[1:, :]
-                flow -= tr[:-1, :]
-        prev = padded[1:-1, 1:-1]
-        np.subtract(m, flow, out=nxt)                        # S_q = M - flow(S_{q-1})
-        np.subtract(nxt, prev, out=bufs["h"][0][:, :nx])
-        dmax = float(np.abs(bufs["h"][0][:, :nx], out=bufs["h"][0][:, :nx]).max())
-        smax = float(np.abs(nxt).max())
-        prev[...] = nxt
-        if tol > 0 and dmax <= tol * smax:
-            converged = True
-            break
-    return padded[1:-1, 1:-1].copy(), q, converged
-
-
-def star_field(size, seed=2018, n_per_mpix=2000, background=100.0, peak=(300.0, 60000.0)):
-    """A seeded star field: Gaussian stars (sigma 0.8-1.5 px), peaks log-uniform."""
-    rng = np.random.default_rng(seed)
-    frame = np.full((size, size), background)
-    n = max(1, int(n_per_mpix * size * size / 1e6))
-    ys, xs = rng.uniform(0, size, n), rng.uniform(0, size, n)
-    peaks = np.exp(rng.uniform(np.log(peak[0]), np.log(peak[1]), n))
-    sigmas = rng.uniform(0.8, 1.5, n)
-    r = 6
-    for y, x, a, s in zip(ys, xs, peaks, sigmas):
-        y0, x0 = int(y), int(x)
-        yy, xx = np.mgrid[max(0, y0 - r):min(size, y0 + r + 1),
-                          max(0, x0 - r):min(size, x0 + r + 1)]
-        frame[yy, xx] += a * np.exp(-((yy - y) ** 2 + (xx - x) ** 2) / (2 * s * s))
-    return frame
-
-
-def uniform_field(size, seed=2018):
-    from .demo import uniform_frame
-
-    return uniform_frame(size, seed)
 
 
 # --------------------------------------------------------------------------- worker side
@@ -162,7 +78,7 @@ def measure_floor(n=1 << 22, repeats=5):
     import taichi as ti
 
     from . import runtime
-    from ._kernels import make_exp
+    from ._kernels import make_alpha
 
     def best(fn):
         fn()
@@ -175,24 +91,24 @@ def measure_floor(n=1 << 22, repeats=5):
 
     rng = np.random.default_rng(0)
     a64, b64 = rng.uniform(0, 60000, n), rng.uniform(0, 60000, n)
-    p64 = donlon2018().kernel_params()
-    out = {"numpy_pair_ns": best(lambda: (
-        p64[0] * np.exp(-np.abs(a64 - b64) * p64[1])
-        + p64[2] * np.exp(-np.sqrt(a64 * a64 + b64 * b64) * p64[3]) + p64[4]))}
+    law = donlon2018()
+    p64 = law.kernel_params()
+    o64, w64 = np.empty(n), np.empty(n)
+    out = {"numpy_pair_ns": best(lambda: law.alpha(a64, b64, out=o64, work=w64))}
     for precision, dtype in (("f64", np.float64), ("f32", np.float32)):
         runtime.init("cpu", precision)
         real = ti.f64 if precision == "f64" else ti.f32
-        exp = make_exp(precision == "f64")
+        alpha = make_alpha(law.kind, precision, fast_exp=True)
+        no_table = np.zeros((2, 2), dtype)
 
         @ti.kernel
         def pairs(a: ti.types.ndarray(dtype=real, ndim=1),
                   b: ti.types.ndarray(dtype=real, ndim=1),
                   o: ti.types.ndarray(dtype=real, ndim=1),
-                  p: ti.types.ndarray(dtype=real, ndim=1)):
+                  p: ti.types.ndarray(dtype=real, ndim=1),
+                  table: ti.types.ndarray(dtype=real, ndim=2)):
             for i in range(a.shape[0]):
-                s, t = a[i], b[i]
-                o[i] = (p[0] * exp(-ti.abs(s - t) * p[1])
-                        + p[2] * exp(-ti.sqrt(s * s + t * t) * p[3]) + p[4])
+                o[i] = alpha(a[i], b[i], p, table)
 
         @ti.kernel
         def stream(a: ti.types.ndarray(dtype=real, ndim=1),
@@ -203,7 +119,7 @@ def measure_floor(n=1 << 22, repeats=5):
 
         a, b, o = a64.astype(dtype), b64.astype(dtype), np.empty(n, dtype)
         p = p64.astype(dtype)
-        out[f"pair_ns_{precision}"] = best(lambda: (pairs(a, b, o, p), ti.sync()))
+        out[f"pair_ns_{precision}"] = best(lambda: (pairs(a, b, o, p, no_table), ti.sync()))
         out[f"stream_ns_{precision}"] = best(lambda: (stream(a, b, o), ti.sync()))
     return out
 
@@ -326,7 +242,7 @@ def _configs(cuda):
 def _frames(size, kind, workdir):
     from .reference import couple_reference
 
-    truth = uniform_field(size) if kind == "uniform" else star_field(size)
+    truth = uniform_frame(size) if kind == "uniform" else star_field(size)
     measured = couple_reference(truth)
     paths = {}
     for name, arr in (("truth", truth), ("measured", measured)):

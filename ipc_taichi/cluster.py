@@ -26,7 +26,8 @@ import os
 import numpy as np
 
 from .errors import IPCInputError
-from .tiling import _core_maxima, _run, halo_for
+from .model import CouplingModel
+from .tiling import decouple_blocks, halo_for, tile_maxima
 
 __all__ = ["local_client", "decouple_files", "decouple_stack", "decouple_mosaic",
            "FileResult"]
@@ -180,8 +181,8 @@ def _decouple_fixed(block, n, options):
 
 
 def _tile_job(core, frame, shape, halo, n, model, arch, precision):
-    return _core_maxima(lambda window: frame[window], shape, core, halo, n, model, arch,
-                        precision)
+    return tile_maxima(lambda window: frame[window], shape, core, halo, n, model, arch,
+                       precision)
 
 
 def decouple_mosaic(measured, client, chunk=1024, law="donlon2018", geometry=None,
@@ -198,12 +199,10 @@ def decouple_mosaic(measured, client, chunk=1024, law="donlon2018", geometry=Non
     """
     import dask.array as da
 
-    from ._engine import resolve_model
-
     frame = np.asarray(measured, dtype=np.float64)
     if frame.ndim != 2:
         raise IPCInputError(f"decouple_mosaic: expected a 2-D frame, got shape {frame.shape}")
-    model = resolve_model(law, geometry, edge)
+    model = CouplingModel.resolve(law, geometry, edge)
     shared = client.scatter(frame, broadcast=False)
 
     def mapper(n, halo, cores):
@@ -213,13 +212,12 @@ def decouple_mosaic(measured, client, chunk=1024, law="donlon2018", geometry=Non
         for fut in futures:
             yield fut.result()
 
-    info = _run(None, None, frame.shape, chunk, *model, max_iter, tol, arch, precision,
-                progress=False, mapper=mapper)
+    info = decouple_blocks(None, None, frame.shape, chunk, model, max_iter, tol, arch, precision,
+                           progress=False, mapper=mapper)
     n = info.iterations
-    depth = halo_for(n, model[1])
+    depth = halo_for(n, model.geometry)
     x = da.from_array(frame, chunks=chunk)
-    options = dict(law=model[0], geometry=model[1], edge=model[2], arch=arch,
-                   precision=precision)
+    options = dict(model=model, arch=arch, precision=precision)
     y = x.map_overlap(_decouple_fixed, depth=depth, boundary="none", trim=True,
                       dtype=np.float64, n=n, options=options)
     out = client.compute(y).result()

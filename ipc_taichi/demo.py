@@ -10,23 +10,10 @@ import time
 
 import numpy as np
 
-from . import runtime
+from . import iteration, runtime
 from .coupling import couple
+from .datasets import WORKED_WINDOW, uniform_frame, worked_example
 from .decoupling import decouple
-
-WORKED_STAR = np.array([[2000.0, 4000.0], [4000.0, 10000.0]])
-
-
-def worked_example_truth():
-    """The paper's worked-example frame: 51x51 zeros with the 2x2 star at [24:26, 24:26]."""
-    truth = np.zeros((51, 51))
-    truth[24:26, 24:26] = WORKED_STAR
-    return truth
-
-
-def uniform_frame(size, seed=2018, high=60000.0):
-    """The paper's random frame: each pixel uniform in [0, high), seeded."""
-    return np.random.default_rng(seed).uniform(0.0, high, (size, size))
 
 
 def _trace(measured, truth, **kwargs):
@@ -48,14 +35,13 @@ def run_demo(size=2048, arch=None, precision=None, out=print):
         "(20000*sqrt2 form), 4 nearest neighbours, zero edge")
     out("")
     out("1. Worked example (paper section 2.3): 2x2 star in a 51x51 zero frame")
-    truth = worked_example_truth()
+    truth = worked_example()
     measured = couple(truth)
     out("   coupled window [23:27, 23:27]:")
-    for row in measured[23:27, 23:27]:
+    for row in measured[WORKED_WINDOW]:
         out("   " + " ".join(f"{v:9.2f}" for v in row))
     rows, info = _trace(measured, truth, max_iter=7, tol=0.0)
-    stop = next(q for q in range(1, len(info.max_delta) + 1)
-                if info.max_delta[q - 1] <= 1e-5 * info.max_signal[q - 1])
+    stop = iteration.first_met(info.max_delta, info.max_signal, iteration.TOL)
     out("   iter      peak   max|error|   max|dS|")
     for q, peak, err, delta in rows:
         mark = "  <- stopping rule (tol 1e-5) stops here" if q == stop else ""

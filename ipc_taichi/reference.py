@@ -4,16 +4,23 @@ Written independently of the Taichi kernels: instead of gathering per pixel
 over a half stencil, it computes for each directed offset ``d`` the charge
 *transfer* array ``T_d[p] = w(d) alpha(S_p, S_{p+d}) S_p`` on a zero-padded
 frame and moves it with an array shift. It is vectorised (one pass over the
-frame per offset), so it is also the honest NumPy peer in ``make bench``.
-Same conventions as :mod:`ipc_taichi.coupling` (edges, bad pixels, geometry).
+frame per offset). Same conventions as :mod:`ipc_taichi.coupling` (edges, bad
+pixels, geometry). :func:`decouple_reference` writes the stopping and
+divergence rules out again on purpose (an independent twin of
+:mod:`ipc_taichi.iteration`).
+
+:func:`decouple_numpy` is the benchmark's NumPy peer: the fastest plain-NumPy
+decoupler we could write for the paper's case (nearest neighbours, zero edge,
+a parametric law), pair-symmetric and in place.
 """
 
 import numpy as np
 
+from . import iteration
 from .geometry import Geometry
-from .laws import get_law
+from .laws import donlon2018, get_law
 
-__all__ = ["couple_reference", "decouple_reference", "flow_reference"]
+__all__ = ["couple_reference", "decouple_reference", "flow_reference", "decouple_numpy"]
 
 
 def flow_reference(signal, law="donlon2018", geometry=None, edge="zero"):
@@ -74,3 +81,55 @@ def decouple_reference(measured, law="donlon2018", geometry=None, edge="zero", m
             converged = True
             break
     return prev, q, converged, deltas
+
+
+def decouple_numpy(measured, law=None, max_iter=iteration.MAX_ITER, tol=iteration.TOL):
+    """The Jacobi decoupler in plain vectorised NumPy, as fast as we can make it.
+
+    Nearest neighbours with weight 1, zero edge, a :class:`ParametricLaw`.
+    Like the Taichi kernels it evaluates alpha once per neighbour *pair*
+    (alpha is symmetric): with ``T = alpha(S_a, S_b) (S_b - S_a)`` on every
+    horizontal and vertical pair, ``flow = T[right pair] - T[left pair] +
+    T[lower pair] - T[upper pair]``. Work arrays are allocated once and all
+    operations write in place (alpha through the law's own NumPy formula with
+    output buffers). Single-threaded, as NumPy is; the paper's stopping rule.
+
+    Returns ``(signal, iterations, converged)``.
+    """
+    law = law or donlon2018()
+    m = np.asarray(measured, dtype=np.float64)
+    ny, nx = m.shape
+    padded = np.zeros((ny + 2, nx + 2))
+    padded[1:-1, 1:-1] = m
+    nxt = np.empty_like(m)
+    # pair arrays: horizontal (ny, nx + 1), vertical (ny + 1, nx)
+    bufs = {name: [np.empty(shape) for _ in range(3)]
+            for name, shape in (("h", (ny, nx + 1)), ("v", (ny + 1, nx)))}
+    delta = np.empty_like(m)
+    converged = False
+    q = 0
+    for q in range(1, int(max_iter) + 1):
+        flow = nxt  # reuse: nxt holds the flow until the update below
+        flow[...] = 0.0
+        for name, a, b in (("h", padded[1:-1, :-1], padded[1:-1, 1:]),
+                           ("v", padded[:-1, 1:-1], padded[1:, 1:-1])):
+            alpha, work, transfer = bufs[name]
+            law.alpha(a, b, out=alpha, work=work)            # alpha of the pair
+            np.subtract(b, a, out=transfer)
+            np.multiply(transfer, alpha, out=transfer)       # net transfer a <- b
+            if name == "h":
+                flow += transfer[:, 1:]
+                flow -= transfer[:, :-1]
+            else:
+                flow += transfer[1:, :]
+                flow -= transfer[:-1, :]
+        prev = padded[1:-1, 1:-1]
+        np.subtract(m, flow, out=nxt)                        # S_q = M - flow(S_{q-1})
+        np.subtract(nxt, prev, out=delta)
+        dmax = float(np.abs(delta, out=delta).max())
+        smax = float(np.abs(nxt).max())
+        prev[...] = nxt
+        if iteration.met(dmax, smax, tol):
+            converged = True
+            break
+    return padded[1:-1, 1:-1].copy(), q, converged

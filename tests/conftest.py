@@ -43,9 +43,9 @@ def rng():
 
 @pytest.fixture
 def worked_truth():
-    from ipc_taichi.demo import worked_example_truth
+    from ipc_taichi.datasets import worked_example
 
-    return worked_example_truth()
+    return worked_example()
 
 
 @pytest.fixture(scope="session")

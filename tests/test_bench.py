@@ -4,7 +4,9 @@ import json
 
 import numpy as np
 
-from ipc_taichi.bench import decouple_numpy, render_markdown, run_benchmark, star_field
+from ipc_taichi.bench import render_markdown, run_benchmark
+from ipc_taichi.datasets import star_field
+from ipc_taichi.reference import decouple_numpy
 from ipc_taichi.reference import couple_reference, decouple_reference
 
 

@@ -65,7 +65,7 @@ def test_stack_identical(client, rng, cpu):
 
 
 def test_mosaic_map_overlap_identical(client, cpu):
-    from ipc_taichi.bench import star_field
+    from ipc_taichi.datasets import star_field
 
     truth = star_field(96, seed=5, n_per_mpix=20000)
     measured = couple_reference(truth)

@@ -5,7 +5,7 @@ import pytest
 from astropy.io import fits
 
 import ipc_taichi
-from ipc_taichi.bench import star_field
+from ipc_taichi.datasets import star_field
 from ipc_taichi._tiled_fits import decouple_fits_tiled
 from ipc_taichi.tiling import decouple_tiled, halo_for, tiles
 

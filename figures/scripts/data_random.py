@@ -16,7 +16,7 @@ from _common import progress, save_npz, write_results
 
 import ipc_taichi
 from analysis.deconvolution import effective_alpha, ipc_kernel, lucy_richardson, wiener_filter
-from ipc_taichi.demo import uniform_frame
+from ipc_taichi.datasets import uniform_frame
 
 SIZE = 512
 SEED = 2018

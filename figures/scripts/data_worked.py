@@ -11,7 +11,7 @@ import numpy as np
 from _common import save_npz, write_results
 
 import ipc_taichi
-from ipc_taichi.demo import worked_example_truth
+from ipc_taichi.datasets import worked_example as worked_example_truth
 
 SHOWN = (0, 1, 2, 3, 7)
 PAPER_PEAK = {0: 9618.94, 1: 9983.31, 2: 9999.13, 3: 9999.95}
