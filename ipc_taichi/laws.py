@@ -8,7 +8,7 @@ Laws
     This is the form that reproduces every table and worked-example number of
     Donlon, Ninkov & Baum (JATIS 2018) and the authors' own code; the printed
     equation (their Eq. 7) has ``10000 sqrt2`` in the second exponent instead
-    (see ``shared/REFERENCE.md`` section 1).
+    (see ``docs/reference.md`` section 1).
 ``donlon2018_printed``
     The printed Eq. 7, with ``10000 sqrt2``. Its minimum over 0..60000 e- is
     0.676 %, closer to the abstract's "0.68 %" than the default's 0.718 %.

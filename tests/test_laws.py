@@ -7,7 +7,7 @@ from ipc_taichi import Geometry, LawError, ParametricLaw, TabulatedLaw, get_law
 from ipc_taichi.laws import check_convergence
 
 PAIRS = [(0, 0), (2000, 0), (4000, 0), (4000, 2000), (10000, 4000), (10000, 0)]
-# REFERENCE.md section 1, in percent
+# docs/reference.md section 1, in percent
 DONLON = [1.45000, 1.38463, 1.32474, 1.35344, 1.21966, 1.17349]
 PRINTED = [1.45, 1.359, 1.279, 1.303, 1.133, 1.090]
 PAPER_TABLE = [1.45, 1.39, 1.33, 1.35, 1.22, 1.17]

@@ -1,4 +1,4 @@
-"""The paper's worked example, numbers from REFERENCE.md section 2."""
+"""The paper's worked example, numbers from docs/reference.md section 2."""
 
 import numpy as np
 import pytest
@@ -49,5 +49,5 @@ def test_later_iterations_continue_to_shrink(cpu, worked_truth):
     errors = []
     ipc_taichi.decouple(measured, max_iter=7, tol=0,
                         callback=lambda q, e: errors.append(np.abs(e - worked_truth).max()))
-    # REFERENCE.md: 4.8e-4, 4.6e-5, 5e-6 at iterations 5-7
+    # docs/reference.md: 4.8e-4, 4.6e-5, 5e-6 at iterations 5-7
     assert errors[4:] == pytest.approx([4.8e-4, 4.6e-5, 5e-6], rel=0.1)
