@@ -37,7 +37,7 @@ figures: install
 
 lock:
 	rm -rf /tmp/ipc-taichi-lock && $(PY) -m venv /tmp/ipc-taichi-lock
-	/tmp/ipc-taichi-lock/bin/pip install -q . ".[test]"
+	/tmp/ipc-taichi-lock/bin/pip install -q ".[test]"
 	{ echo "# Exact versions for .venv (Python 3.11; regenerate with 'make lock' after changing pyproject.toml)."; \
 	  /tmp/ipc-taichi-lock/bin/pip freeze --all | grep -v "^ipc.taichi\|^pip=" ; } > requirements.lock
 

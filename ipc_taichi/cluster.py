@@ -7,7 +7,8 @@ and keeps it for later tasks.
 
 - :func:`local_client` starts such a ``LocalCluster`` (or connects to a
   running scheduler).
-- :func:`decouple_files` decouples many FITS files, one task per file. The
+- :func:`decouple_files` decouples many product files (FITS or Roman ASDF,
+  through :func:`ipc_taichi.products.decouple_file`), one task per file. The
   worker reads the input and writes the output itself (atomically: temporary
   file beside the output, renamed on success), so frames never travel through
   the client. A corrupt file or a dying worker fails that file only; the
@@ -25,6 +26,7 @@ import os
 
 import numpy as np
 
+from . import iteration
 from .errors import IPCInputError
 from .model import CouplingModel
 from .tiling import decouple_blocks, halo_for, tile_maxima
@@ -73,8 +75,8 @@ class FileResult(dict):
 
 
 def decouple_one_file(input_path, output_path, options):
-    """Read, decouple and write one FITS file (runs on a worker)."""
-    from ._cli_frames import decouple_file
+    """Read, decouple and write one FITS product (runs on a worker)."""
+    from .products import decouple_file
 
     return decouple_file(input_path, output_path, **options)
 
@@ -86,8 +88,9 @@ def decouple_files(pairs, options, client, progress=None, task=None):
     ----------
     pairs : list of (str, str)
     options : dict
-        Keyword arguments of :func:`ipc_taichi._cli_frames.decouple_file`
-        (hdu, overwrite, law, geometry, edge, max_iter, tol, arch, precision).
+        Keyword arguments of :func:`ipc_taichi.products.decouple_file`
+        (``model`` or law/geometry/edge, hdu, overwrite, max_iter, tol, arch,
+        precision, tile, dq_bits, refpix, gain, exptime, bunit, output_dtype).
         Existing outputs are refused up front unless ``overwrite`` (the check runs
         on the client: inputs and outputs must be on a file system the client and
         the workers share).
@@ -186,8 +189,8 @@ def _tile_job(core, frame, shape, halo, n, model, arch, precision):
 
 
 def decouple_mosaic(measured, client, chunk=1024, law="donlon2018", geometry=None,
-                    edge="zero", max_iter=20, tol=1e-5, arch=None, precision=None,
-                    full_output=False):
+                    edge="zero", max_iter=iteration.MAX_ITER, tol=iteration.TOL, arch=None,
+                    precision=None, full_output=False, *, model=None):
     """Decouple one large frame across the workers; equal to :func:`ipc_taichi.decouple`.
 
     1. The iteration count: the paper's rule on the whole frame, from per-tile
@@ -202,7 +205,8 @@ def decouple_mosaic(measured, client, chunk=1024, law="donlon2018", geometry=Non
     frame = np.asarray(measured, dtype=np.float64)
     if frame.ndim != 2:
         raise IPCInputError(f"decouple_mosaic: expected a 2-D frame, got shape {frame.shape}")
-    model = CouplingModel.resolve(law, geometry, edge)
+    model = CouplingModel.resolve(model) if model is not None else \
+        CouplingModel.resolve(law, geometry, edge)
     shared = client.scatter(frame, broadcast=False)
 
     def mapper(n, halo, cores):

@@ -73,13 +73,3 @@ def run_demo(size=2048, arch=None, precision=None, out=print):
     out(f"   time on {rt.arch} ({rt.precision}): couple {t_couple:.3f} s, "
         f"decouple {t_decouple:.3f} s (kernels compiled beforehand)")
     return 0
-
-
-def add_parser(sub):
-    p = sub.add_parser("demo", help="run the main job: the paper's worked example and a "
-                       "random frame through couple -> decouple",
-                       description=__doc__.split("\n\n")[0])
-    p.add_argument("--size", type=int, default=2048, help="side of the random frame (default 2048)")
-    p.add_argument("--arch", choices=("auto", "cpu", "cuda"), default=None)
-    p.add_argument("--precision", choices=("f64", "f32"), default=None)
-    p.set_defaults(run=lambda a: run_demo(a.size, a.arch, a.precision))

@@ -1,4 +1,10 @@
-"""FITS input and output for the command line: one-line errors, atomic writes.
+"""Small FITS helpers: one-line errors, atomic writes, HDU names.
+
+Products (JWST/Roman files with their DQ, units and every HDU kept) go
+through :mod:`ipc_taichi.products`; this module keeps what it and the
+analysis scripts share: :func:`parse_hdu`, :func:`check_output_path`,
+:class:`atomic_output`, and :func:`read_image` / :func:`write_image` for
+single images (analysis and figure data).
 
 Errors name the file and the HDU. Outputs are written to a temporary file in
 the destination directory and renamed into place, so a failure never leaves a
@@ -13,7 +19,8 @@ import numpy as np
 
 from .errors import IPCInputError
 
-__all__ = ["read_image", "write_image", "parse_hdu", "atomic_output", "check_output_path"]
+__all__ = ["read_image", "write_image", "parse_hdu", "atomic_output", "check_output_path",
+           "request_stop", "clear_stop", "check_stop"]
 
 # structural and scaling keywords that must not be copied onto a new float image
 _STRUCTURAL = {"SIMPLE", "XTENSION", "BITPIX", "NAXIS", "EXTEND", "PCOUNT", "GCOUNT",
@@ -95,6 +102,28 @@ def check_output_path(path, overwrite):
         raise IPCInputError(f"{path}: directory {parent} does not exist")
 
 
+_stop_requests = []
+
+
+def request_stop(exc):
+    """Remember that the process was asked to stop (a signal handler calls
+    this, then raises ``exc``). Taichi's kernel compiler has bare ``except:``
+    clauses that can swallow the exception; :func:`check_stop` raises it again
+    at the next check, and :class:`atomic_output` never commits after it."""
+    _stop_requests.append(exc)
+
+
+def clear_stop():
+    """Forget earlier stop requests (a new command starts)."""
+    _stop_requests.clear()
+
+
+def check_stop():
+    """Raise the pending stop request, if any."""
+    if _stop_requests:
+        raise _stop_requests[0]
+
+
 class atomic_output:
     """Context manager yielding a temporary path beside ``path``; renamed onto
     ``path`` only if the block succeeds, deleted otherwise."""
@@ -113,6 +142,10 @@ class atomic_output:
         return self.tmp
 
     def __exit__(self, exc_type, exc, tb):
+        if exc_type is None and _stop_requests:  # a swallowed SIGINT/SIGTERM: do not commit
+            if os.path.exists(self.tmp):
+                os.unlink(self.tmp)
+            raise _stop_requests[0]
         if exc_type is None:
             if os.path.exists(self.path) and not self.overwrite:  # appeared meanwhile
                 os.unlink(self.tmp)

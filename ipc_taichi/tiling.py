@@ -86,9 +86,11 @@ def tile_maxima(read, shape, core, halo, n, model, arch=None, precision=None, re
 
     def record(q, estimate):
         now = np.asarray(estimate[inner], dtype=np.float64)
-        before = last.get("core")
-        deltas.append(float(np.nanmax(np.abs(now - before))) if np.isfinite(now).any() else 0.0)
-        signals.append(float(np.nanmax(np.abs(now))) if np.isfinite(now).any() else 0.0)
+        change = np.abs(now - last["core"])
+        # maxima over the pixels that have values (NaN pixels of the input
+        # stay NaN in S_0; a core may have none at all)
+        deltas.append(float(change.max(initial=0.0, where=~np.isnan(change))))
+        signals.append(float(np.abs(now).max(initial=0.0, where=~np.isnan(now))))
         last["core"] = now.copy()
 
     measured = np.asarray(read(outer), dtype=np.float64)

@@ -3,19 +3,36 @@
 import os
 import subprocess
 import sys
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 from astropy.io import fits
 
+from ipc_taichi.cli import main
 from ipc_taichi.reference import couple_reference, decouple_reference
 
 ENV = dict(os.environ, IPC_TAICHI_ARCH="cpu", IPC_TAICHI_PRECISION="f64")
 
 
-def cli(*args):
+def run_cli(*args):
+    """``ipc-taichi ARGS`` as a user runs it (a new process)."""
     return subprocess.run([sys.executable, "-m", "ipc_taichi.cli", *map(str, args)],
                           capture_output=True, text=True, env=ENV, timeout=300)
+
+
+@pytest.fixture
+def cli(capsys):
+    """``ipc-taichi ARGS`` in this process (Taichi starts once for the file)."""
+    def run(*args):
+        try:
+            code = main([str(a) for a in args])
+        except SystemExit as exc:  # --help, argparse usage errors
+            code = exc.code
+        out = capsys.readouterr()
+        return SimpleNamespace(returncode=code, stderr=out.err, stdout=out.out)
+
+    return run
 
 
 @pytest.fixture
@@ -29,11 +46,11 @@ def test_round_trip_and_header(tmp_path, truth):
     hdr["OBSERVER"] = "test"
     fits.PrimaryHDU(truth.astype(">f8"), header=hdr).writeto(src)  # big-endian on disk
     coupled, decoupled = tmp_path / "coupled.fits", tmp_path / "decoupled.fits"
-    r = cli("couple", src, coupled, "--arch", "cpu")
+    r = run_cli("couple", src, coupled, "--arch", "cpu")
     assert r.returncode == 0, r.stderr
     m = fits.getdata(coupled)
     np.testing.assert_allclose(m, couple_reference(truth), rtol=1e-9)
-    r = cli("decouple", coupled, decoupled)
+    r = run_cli("decouple", coupled, decoupled)
     assert r.returncode == 0, r.stderr
     with fits.open(decoupled) as hdul:
         h = hdul[0].header
@@ -48,7 +65,7 @@ def test_round_trip_and_header(tmp_path, truth):
     assert any("decouple" in str(line) for line in h["HISTORY"])
 
 
-def test_refuses_to_overwrite(tmp_path, truth):
+def test_refuses_to_overwrite(cli, tmp_path, truth):
     src, out = tmp_path / "in.fits", tmp_path / "out.fits"
     fits.writeto(src, truth)
     out.write_bytes(b"precious")
@@ -57,7 +74,14 @@ def test_refuses_to_overwrite(tmp_path, truth):
     assert "exists" in r.stderr and "--overwrite" in r.stderr
     assert len(r.stderr.strip().splitlines()) == 1
     assert out.read_bytes() == b"precious"
+    # two positional names: --overwrite replaces OUT only if ipc-taichi wrote it
     r = cli("couple", src, out, "--overwrite")
+    assert r.returncode == 2 and "not written by ipc-taichi" in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1
+    assert out.read_bytes() == b"precious"
+    r = cli("couple", src, "--output", out, "--overwrite")  # named explicitly
+    assert r.returncode == 0, r.stderr
+    r = cli("couple", src, out, "--overwrite")  # now ours: may be replaced
     assert r.returncode == 0, r.stderr
     assert fits.getdata(out).shape == truth.shape
     assert not [p for p in os.listdir(tmp_path) if p.startswith(".tmp-")]
@@ -65,7 +89,7 @@ def test_refuses_to_overwrite(tmp_path, truth):
 
 @pytest.mark.parametrize("hdu, message", [("3", "no such HDU"), ("SCI", "no such HDU"),
                                           ("TAB", "not an image"), ("0", "no data")])
-def test_bad_hdu(tmp_path, truth, hdu, message):
+def test_bad_hdu(cli, tmp_path, truth, hdu, message):
     src = tmp_path / "in.fits"
     table = fits.BinTableHDU.from_columns([fits.Column(name="a", format="D", array=[1.0])],
                                           name="TAB")
@@ -77,7 +101,7 @@ def test_bad_hdu(tmp_path, truth, hdu, message):
     assert not (tmp_path / "out.fits").exists()
 
 
-def test_extension_and_integer_input(tmp_path, rng):
+def test_extension_and_integer_input(cli, tmp_path, rng):
     truth = rng.integers(0, 60000, (20, 30)).astype(np.uint16)  # stored with BZERO
     src = tmp_path / "in.fits"
     fits.HDUList([fits.PrimaryHDU(), fits.ImageHDU(truth, name="SCI")]).writeto(src)
@@ -85,14 +109,16 @@ def test_extension_and_integer_input(tmp_path, rng):
     r = cli("couple", src, out, "--hdu", "SCI", "--law", "constant:0.01", "--edge", "isolated")
     assert r.returncode == 0, r.stderr
     with fits.open(out) as hdul:
-        assert "BZERO" not in hdul[0].header
-        data = hdul[0].data
+        assert [h.name for h in hdul] == ["PRIMARY", "SCI"]  # the product is kept
+        assert "BZERO" not in hdul["SCI"].header and hdul["SCI"].header["BITPIX"] == -64
+        assert hdul[0].header["IPCOP"] == "couple" and "S_IPC" not in hdul[0].header
+        data = hdul["SCI"].data
     np.testing.assert_allclose(data, couple_reference(truth.astype(float), 0.01, None, "isolated"),
                                rtol=1e-12)
     assert data.sum() == pytest.approx(truth.sum(dtype=float), rel=1e-12)
 
 
-def test_cube_and_nan(tmp_path, rng):
+def test_cube_and_nan(cli, tmp_path, rng):
     cube = rng.uniform(0, 60000, (3, 16, 16))
     cube[1, 4, 4] = np.nan
     src, out = tmp_path / "cube.fits", tmp_path / "out.fits"
@@ -111,7 +137,7 @@ def test_cube_and_nan(tmp_path, rng):
     (["--law", "constant:0.3"], "too strong"),
     (["--geometry", "diag=1"], "NAME=VALUE"),
 ])
-def test_bad_model_options(tmp_path, truth, args, message):
+def test_bad_model_options(cli, tmp_path, truth, args, message):
     src = tmp_path / "in.fits"
     fits.writeto(src, truth)
     r = cli("decouple", src, tmp_path / "out.fits", *args)
@@ -119,7 +145,7 @@ def test_bad_model_options(tmp_path, truth, args, message):
     assert len(r.stderr.strip().splitlines()) == 1
 
 
-def test_not_fits_and_missing(tmp_path):
+def test_not_fits_and_missing(cli, tmp_path):
     bad = tmp_path / "bad.fits"
     bad.write_text("not a fits file")
     r = cli("decouple", bad, tmp_path / "out.fits")
@@ -128,7 +154,7 @@ def test_not_fits_and_missing(tmp_path):
     assert r.returncode == 2 and "no such file" in r.stderr
 
 
-def test_help_documents_options():
+def test_help_documents_options(cli):
     r = cli("decouple", "--help")
     assert r.returncode == 0
     for option in ("--hdu", "--law", "--max-iter", "--tol", "--edge", "--arch", "--precision",
@@ -137,8 +163,36 @@ def test_help_documents_options():
 
 
 def test_demo_prints_worked_example():
-    r = cli("demo", "--size", "128")
+    r = run_cli("demo", "--size", "128")
     assert r.returncode == 0, r.stderr
     for number in ("9618.94", "9983.31", "9999.13", "9999.95", "stopping rule"):
         assert number in r.stdout
     assert "[Taichi]" not in r.stdout
+
+
+def test_no_library_module_imports_the_command_line():
+    """The command line sits on top: nothing below it imports ``ipc_taichi.cli``."""
+    import ast
+    import pathlib
+
+    import ipc_taichi
+
+    root = pathlib.Path(ipc_taichi.__file__).parent
+    offenders = []
+    for path in root.rglob("*.py"):
+        rel = path.relative_to(root)
+        if rel.parts[0] == "cli":
+            continue
+        package = ["ipc_taichi", *rel.parts[:-1]]
+        for node in ast.walk(ast.parse(path.read_text())):
+            names = []
+            if isinstance(node, ast.Import):
+                names = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom):
+                base = package[:len(package) - node.level + 1] if node.level else []
+                module = ".".join(base + ([node.module] if node.module else []))
+                names = [module] + [f"{module}.{a.name}" for a in node.names]
+            if any(n == "ipc_taichi.cli" or n.startswith("ipc_taichi.cli.") for n in names):
+                offenders.append(str(rel))
+    assert offenders == []
+    assert (root / "cli" / "options.py").exists()

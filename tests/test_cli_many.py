@@ -3,18 +3,33 @@
 import os
 import subprocess
 import sys
+from types import SimpleNamespace
 
 import numpy as np
+import pytest
 from astropy.io import fits
 
+from ipc_taichi.cli import main
 from ipc_taichi.reference import couple_reference, decouple_reference
 
 ENV = dict(os.environ, IPC_TAICHI_ARCH="cpu", IPC_TAICHI_PRECISION="f64")
 
 
-def cli(*args):
+def run_cli(*args):
+    """``ipc-taichi ARGS`` as a user runs it (a new process)."""
     return subprocess.run([sys.executable, "-m", "ipc_taichi.cli", *map(str, args)],
                           capture_output=True, text=True, env=ENV, timeout=300)
+
+
+@pytest.fixture
+def cli(capsys):
+    """``ipc-taichi ARGS`` in this process."""
+    def run(*args):
+        code = main([str(a) for a in args])
+        out = capsys.readouterr()
+        return SimpleNamespace(returncode=code, stderr=out.err, stdout=out.out)
+
+    return run
 
 
 def test_many_files_one_corrupt(tmp_path, rng):
@@ -29,7 +44,7 @@ def test_many_files_one_corrupt(tmp_path, rng):
     bad.write_text("not a fits file")
     out = tmp_path / "out"
     out.mkdir()
-    r = cli("decouple", inputs[0], bad, inputs[1], "-o", out, "--workers", "2", "--quiet")
+    r = run_cli("decouple", inputs[0], bad, inputs[1], "-o", out, "--workers", "2", "--quiet")
     assert r.returncode == 1
     errors = [line for line in r.stderr.splitlines() if "error" in line]
     assert len(errors) == 1 and "broken.fits" in errors[0]
@@ -42,12 +57,12 @@ def test_many_files_one_corrupt(tmp_path, rng):
         assert fits.getheader(out / f"frame{k}_decoupled.fits")["IPCITER"] == iterations
     # outputs exist now: without --overwrite every file fails, nothing is replaced
     before = (out / "frame0_decoupled.fits").read_bytes()
-    r = cli("decouple", inputs[0], inputs[1], "-o", out, "--workers", "2", "--quiet")
+    r = run_cli("decouple", inputs[0], inputs[1], "-o", out, "--workers", "2", "--quiet")
     assert r.returncode == 1 and r.stderr.count("exists") == 2
     assert (out / "frame0_decoupled.fits").read_bytes() == before
 
 
-def test_usage_errors(tmp_path):
+def test_usage_errors(cli, tmp_path):
     a, b, c = (tmp_path / f"{n}.fits" for n in "abc")
     r = cli("decouple", a, b, c)
     assert r.returncode == 2 and "-o OUTDIR" in r.stderr
@@ -61,7 +76,7 @@ def test_usage_errors(tmp_path):
     assert r.returncode == 2 and "too strong" in r.stderr
 
 
-def test_single_file_tiled(tmp_path, rng):
+def test_single_file_tiled(cli, tmp_path, rng):
     truth = rng.uniform(0, 60000, (50, 45))
     src, out = tmp_path / "in.fits", tmp_path / "out.fits"
     fits.writeto(src, couple_reference(truth))

@@ -6,7 +6,6 @@ from astropy.io import fits
 
 import ipc_taichi
 from ipc_taichi.datasets import star_field
-from ipc_taichi._tiled_fits import decouple_fits_tiled
 from ipc_taichi.tiling import decouple_tiled, halo_for, tiles
 
 
@@ -65,24 +64,19 @@ def test_tiles_cover_frame():
         list(tiles((4, 4), 0))
 
 
-def test_fits_streaming_cube(cpu, tmp_path, star_frame):
-    frame = np.nan_to_num(star_frame)[:90, :70]
-    cube = np.stack([ipc_taichi.couple(frame), ipc_taichi.couple(frame[::-1])])
-    src, out = tmp_path / "cube.fits", tmp_path / "out.fits"
-    hdr = fits.Header()
-    hdr["OBSERVER"] = "tiles"
-    fits.writeto(src, cube.astype(">f8"), header=hdr)
-    infos = decouple_fits_tiled(str(src), str(out), tile=32)
-    with fits.open(out) as hdul:
-        data, h = hdul[0].data, hdul[0].header
-    assert h["OBSERVER"] == "tiles" and data.shape == cube.shape
-    for k in range(2):
-        whole, info = ipc_taichi.decouple(cube[k], full_output=True)
-        assert infos[k].iterations == info.iterations
-        assert np.abs(data[k] - whole).max() <= 1e-12 * whole.max()
-    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".tmp-")]
-    with pytest.raises(ipc_taichi.IPCInputError, match="exists"):
-        decouple_fits_tiled(str(src), str(out), tile=32)
+def test_masked_and_all_nan_tiles_equal_whole_frame(cpu, star_frame):
+    """mask= and an all-NaN tile core go through tiling exactly as through the
+    whole-frame decoupler, with no warning (warnings are errors here)."""
+    measured = np.nan_to_num(ipc_taichi.couple(star_frame))
+    measured[:16, :16] = np.nan
+    mask = np.zeros(measured.shape, dtype=bool)
+    mask[50:53, 70] = True
+    measured[50:53, 70] = 1e9  # junk under the mask must not leak
+    whole = ipc_taichi.decouple(measured, mask=mask)
+    tiled = decouple_tiled(measured, tile=16, mask=mask)
+    assert np.array_equal(np.isnan(whole), np.isnan(tiled))
+    assert np.nanmax(np.abs(tiled - whole)) <= 1e-12 * np.nanmax(whole)
+    assert np.all(tiled[50:53, 70] == 1e9)
 
 
 @pytest.mark.parametrize("edge", ["zero", "isolated"])

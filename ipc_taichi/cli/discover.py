@@ -1,13 +1,20 @@
-"""``ipc-taichi discover`` and ``ipc-taichi simulate-lab``."""
+"""``ipc-taichi discover`` and ``ipc-taichi simulate-lab``
+(:func:`ipc_taichi.discover.search.discover`,
+:func:`ipc_taichi.discover.labdata.simulate_lab`)."""
 
 import json
+import sys
 
 from ..errors import IPCInputError
 from ..fitsio import check_output_path
-from .effects import EFFECT_NAMES
+from .options import add_quiet_argument, add_runtime_arguments
+
+__all__ = ["add_parsers", "run_discover", "run_simulate_lab"]
 
 
-def add_parser(sub):
+def add_parsers(sub):
+    from ..discover.effects import EFFECT_NAMES
+
     p = sub.add_parser(
         "discover", help="find which detector effect the model misses: DATA.fits -> report",
         description="Compare MEASURED frames with the model's prediction of their SCENE "
@@ -21,8 +28,8 @@ def add_parser(sub):
     p.add_argument("--threshold", type=float, default=None,
                    help="minimum delta BIC to add an effect (default 25)")
     p.add_argument("--overwrite", action="store_true", help="replace REPORT.json if it exists")
-    p.add_argument("--quiet", action="store_true", help="no progress lines")
-    _runtime_arguments(p)
+    add_quiet_argument(p, "progress lines")
+    add_runtime_arguments(p)
     p.set_defaults(run=run_discover)
 
     s = sub.add_parser(
@@ -36,6 +43,8 @@ def add_parser(sub):
                         "anisotropic_ipc=FRACTION, second_neighbor_ipc=ALPHA_SECOND, "
                         "classical_nonlinearity=DEFICIT_AT_50KE, brighter_fatter="
                         "DEFLECTION_AT_50KE, charge_diffusion=SIGMA_PX, dark_current=E, "
+                        "flat_field=RMS, reciprocity_failure=ALPHA_PER_DECADE, "
+                        "excess_read_noise=TRUE_READNOISE, misregistration=SHIFT_X_PX, "
                         "signal_dependent_ipc=LAW (frames made with LAW, IPCLAW says --law)")
     s.add_argument("--readnoise", type=float, default=12.0, help="e- RMS (default 12)")
     s.add_argument("--seed", type=int, default=0)
@@ -48,16 +57,8 @@ def add_parser(sub):
                    help="fraction of MEASURED pixels set to NaN (default 0)")
     s.add_argument("--float32", action="store_true", help="store float32 (default float64)")
     s.add_argument("--overwrite", action="store_true", help="replace OUT.fits if it exists")
-    _runtime_arguments(s)
+    add_runtime_arguments(s)
     s.set_defaults(run=run_simulate_lab)
-
-
-def _runtime_arguments(p):
-    r = p.add_argument_group("runtime")
-    r.add_argument("--arch", choices=("auto", "cpu", "cuda"), default=None,
-                   help="Taichi arch (default: $IPC_TAICHI_ARCH or auto)")
-    r.add_argument("--precision", choices=("f64", "f32"), default=None,
-                   help="floating precision (default: $IPC_TAICHI_PRECISION or f64)")
 
 
 def _init(args):
@@ -67,10 +68,8 @@ def _init(args):
 
 
 def run_discover(args):
-    import sys
-
-    from .report import write_figures, write_report
-    from .search import EVIDENCE_THRESHOLD, discover
+    from ..discover.report import summary_line, to_json, write_figures, write_report
+    from ..discover.search import EVIDENCE_THRESHOLD, discover
 
     if args.report:
         check_output_path(args.report, args.overwrite)  # fail before computing
@@ -82,18 +81,17 @@ def run_discover(args):
         write_figures(result, args.figures)
     if args.report:
         write_report(result.report, args.report, args.overwrite)
-        r = result.report
-        print(f"missing effects: {', '.join(r['missing_effects']) or 'none'}; gap "
-              f"{r['baseline_gap']:.4f} -> {r['final_gap']:.4f} (floor {r['gap_floor']:.4f} "
-              f"+- {r['gap_floor_sigma']:.4f}); report {args.report}")
+        print(f"{summary_line(result.report)}; report {args.report}")
     else:
-        from .report import to_json
-
         print(json.dumps(to_json(result.report), indent=2))
+        if not args.quiet:
+            print(f"discover: {summary_line(result.report)}", file=sys.stderr)
     return 0
 
 
 def _parse_effects(items):
+    from ..discover.effects import EFFECT_NAMES
+
     effects = {}
     for item in items:
         name, eq, value = item.partition("=")
@@ -126,7 +124,7 @@ def _parse_size(text):
 def run_simulate_lab(args):
     import numpy as np
 
-    from .labdata import simulate_lab
+    from ..discover.labdata import simulate_lab
 
     check_output_path(args.output, args.overwrite)
     effects = _parse_effects(args.effect)

@@ -1,0 +1,50 @@
+"""``ipc-taichi bench``: time decoupling (:func:`ipc_taichi.bench.run_benchmark`)."""
+
+import os
+
+from ..bench import KINDS, SIZES, run_benchmark, write_results
+from ..errors import IPCInputError
+
+__all__ = ["add_parser", "run"]
+
+
+def add_parser(sub):
+    p = sub.add_parser(
+        "bench", help="time decoupling: NumPy vs Taichi CPU f64/f32 (and CUDA when present)",
+        description="Decouple the same frames with plain NumPy and with Taichi (CPU f64, f32; "
+                    "CUDA f64, f32 when a GPU is present), each configuration in a fresh "
+                    "process; print a table and write bench/results.json and bench/RESULTS.md.")
+    p.add_argument("--sizes", default=",".join(map(str, SIZES)),
+                   help="comma-separated square frame sizes (default: "
+                        f"{','.join(map(str, SIZES))})")
+    p.add_argument("--kinds", default=",".join(KINDS),
+                   help="frames: uniform (0..60000) and/or stars (default: both)")
+    p.add_argument("--repeats", type=int, default=5,
+                   help="timed runs per configuration, median reported (default 5)")
+    p.add_argument("--configs", default=None,
+                   help="comma-separated subset of numpy,numpy-reference,taichi-cpu-f64,"
+                        "taichi-cpu-f32,taichi-cuda-f64,taichi-cuda-f32")
+    p.add_argument("--output", default="bench", help="directory for results (default: bench)")
+    p.set_defaults(run=run)
+
+
+def run(args):
+    try:
+        sizes = tuple(int(s) for s in args.sizes.split(","))
+    except ValueError:
+        raise IPCInputError(f"--sizes {args.sizes!r}: expected integers like 512,2048") from None
+    kinds = tuple(k.strip() for k in args.kinds.split(","))
+    bad = [k for k in kinds if k not in KINDS]
+    if bad or not sizes or min(sizes) < 8 or args.repeats < 1:
+        raise IPCInputError(f"bench: need sizes >= 8, kinds in {KINDS}, repeats >= 1")
+    configs = args.configs.split(",") if args.configs else None
+    print(f"ipc-taichi bench: sizes {sizes}, frames {kinds}, {args.repeats} repeats",
+          flush=True)
+    results = run_benchmark(sizes, kinds, args.repeats, configs,
+                            progress=lambda s: print(s, flush=True))
+    for note in results["notes"]:
+        print("note:", note)
+    write_results(results, args.output)
+    print(f"wrote {os.path.join(args.output, 'results.json')} and "
+          f"{os.path.join(args.output, 'RESULTS.md')}")
+    return 1 if any("error" in r for r in results["rows"]) else 0

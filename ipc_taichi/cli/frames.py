@@ -1,0 +1,259 @@
+"""``ipc-taichi couple`` and ``ipc-taichi decouple``: FITS products in and out.
+
+``couple IN OUT`` and ``decouple IN OUT``: one product in, the same product out
+(:func:`ipc_taichi.products.process_fits`: every HDU and keyword kept, the
+science array changed, DQ/reference pixels/units honoured).
+
+``decouple IN1 [IN2 ...] -o OUTDIR``: many files. Each output is
+``OUTDIR/<input name without .fits>_decoupled.fits`` (``--suffix``). With more
+than one file the work runs on Dask: a local cluster of single-threaded worker
+processes (``--workers``), or the scheduler at ``--scheduler ADDRESS``. A file
+that fails is reported in one line and leaves nothing at its output path; the
+others complete; the exit code is 1 when any failed. ``--tile N`` decouples
+tile by tile through memory maps (frames larger than memory; exact).
+
+The overwrite rule: with two positional names ``IN OUT``, ``--overwrite``
+replaces OUT only if OUT is a file this tool wrote (its primary header has
+``IPCOP``), so that ``ipc-taichi decouple *.fits --overwrite`` matching exactly
+two inputs cannot replace the second input by the decoupled first. To replace
+any other file, name it as the output explicitly: ``--output OUT --overwrite``.
+"""
+
+import glob
+import os
+import sys
+import time
+
+from ..errors import IPCInputError
+from ..products import couple_file, decouple_file, written_by_ipc_taichi
+from .options import (add_iteration_arguments, add_model_arguments, add_quiet_argument,
+                      add_runtime_arguments, model_from_args)
+
+__all__ = ["add_parsers", "run_couple", "run_decouple", "output_name"]
+
+EXIT_FAILED, EXIT_UNCONVERGED = 1, 3
+
+
+def _add_product_arguments(p):
+    g = p.add_argument_group("products (see docs/products.md)")
+    g.add_argument("--hdu", default=None,
+                   help="science HDU: index, EXTNAME or EXTNAME,EXTVER (default: SCI, else the "
+                        "first HDU with image data); DQ/PIXELDQ/GROUPDQ are refused")
+    g.add_argument("--dq-bits", default="DO_NOT_USE", metavar="FLAGS",
+                   help="DQ/PIXELDQ/GROUPDQ flags of pixels left out (they keep their values "
+                        "and do not couple): names or integers, comma-separated (default "
+                        "DO_NOT_USE; 0 = none)")
+    g.add_argument("--refpix", type=int, default=None, metavar="N",
+                   help="reference border of N pixels, never changed, zero-signal neighbours "
+                        "(default: the REFERENCE_PIXEL flags, else 4 for a JWST near-IR full "
+                        "frame, else 0)")
+    g.add_argument("--gain", default=None, metavar="E_PER_DN",
+                   help="gain in e-/DN, a number or a gain image FITS file (default: the GAIN "
+                        "keyword); needed for data in DN or DN/s")
+    g.add_argument("--exptime", type=float, default=None, metavar="SECONDS",
+                   help="integration time of rate data (default: EFFINTTM)")
+    g.add_argument("--bunit", default=None,
+                   help="units of the data, overriding BUNIT: electron, DN, DN/s, electron/s "
+                        "(no BUNIT: electrons, the law's unit)")
+    g.add_argument("--output-dtype", choices=("same", "float32", "float64"), default="same",
+                   help="science dtype out (default same: float stays float, integer becomes "
+                        "float64)")
+
+
+def add_parsers(sub):
+    """Register ``couple`` and ``decouple``."""
+    common = ("FITS or Roman ASDF. The output is the input product with its science array "
+              "changed: every other HDU and header keyword is kept; IPC* keywords and "
+              "HISTORY record what was done (decouple also sets S_IPC = 'COMPLETE'). The law "
+              "is in electrons: data in DN or DN/s are converted with the gain (and "
+              "integration time) and back. DQ-flagged pixels keep their values and do not "
+              "couple; reference pixels are never changed. Stacks and ramps are processed "
+              "frame by frame. NaN pixels stay NaN. The output is written atomically and "
+              "never overwritten without --overwrite. See docs/products.md.")
+    for name, helptext in (
+        ("couple", "apply IPC to a signal product (forward model): IN -> OUT"),
+        ("decouple", "remove IPC from a measured product (iterative Jacobi inversion): "
+                     "IN -> OUT"),
+    ):
+        p = sub.add_parser(name, help=helptext, description=f"{helptext}. {common}")
+        p.add_argument("paths", nargs="+", metavar="IN.fits",
+                       help="IN.fits OUT.fits, IN.fits --output OUT.fits"
+                       + (", or with -o: one or more inputs" if name == "decouple" else ""))
+        p.add_argument("--output", default=None, metavar="OUT.fits",
+                       help="the output, named explicitly: with --overwrite it replaces any "
+                            "file (a second positional OUT is replaced only if ipc-taichi "
+                            "wrote it)")
+        p.add_argument("--overwrite", action="store_true", help="replace OUT.fits if it exists")
+        if name == "decouple":
+            m = p.add_argument_group("many files, large frames")
+            m.add_argument("-o", "--output-dir", default=None, metavar="OUTDIR",
+                           help="decouple every IN.fits into OUTDIR/<name>SUFFIX.fits")
+            m.add_argument("--suffix", default="_decoupled",
+                           help="added to each input's name in OUTDIR (default _decoupled)")
+            m.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                           help="Dask scheduler to run on (default: a local cluster)")
+            m.add_argument("--workers", type=int, default=None,
+                           help="worker processes of the local cluster, >= 1 (default: "
+                                "min(files, CPU cores))")
+            m.add_argument("--tile", type=int, default=None, metavar="N",
+                           help="decouple tile by tile (N x N cores plus a halo) through "
+                                "memory maps; exact")
+        _add_product_arguments(p)
+        add_model_arguments(p)
+        if name == "decouple":
+            add_iteration_arguments(p)
+        add_runtime_arguments(p)
+        add_quiet_argument(p, "progress bar, summary or CUDA notice")
+        p.set_defaults(run=run_couple if name == "couple" else run_decouple)
+
+
+def _product_options(args):
+    dtype = None if args.output_dtype == "same" else args.output_dtype
+    options = dict(hdu=args.hdu, overwrite=args.overwrite, arch=args.arch,
+                   precision=args.precision, dq_bits=args.dq_bits, refpix=args.refpix,
+                   gain=args.gain, exptime=args.exptime, bunit=args.bunit, output_dtype=dtype)
+    if hasattr(args, "max_iter"):
+        options.update(max_iter=args.max_iter, tol=args.tol, tile=args.tile)
+    return options
+
+
+def _single_pair(args, command):
+    """``(IN, OUT)`` of the one-file forms; applies the overwrite rule."""
+    if args.output is not None:
+        if len(args.paths) != 1:
+            raise IPCInputError(f"{command}: with --output give exactly one input")
+        return args.paths[0], args.output
+    if len(args.paths) != 2:
+        more = ", or several inputs with -o OUTDIR" if command == "decouple" else ""
+        raise IPCInputError(f"{command}: give IN.fits OUT.fits, IN.fits --output OUT.fits{more}")
+    src, dst = args.paths
+    if args.overwrite and os.path.exists(dst) and not written_by_ipc_taichi(dst):
+        raise IPCInputError(
+            f"{dst}: exists and was not written by ipc-taichi, so it may be an input; "
+            f"to replace it, name it explicitly: --output {dst} --overwrite")
+    return src, dst
+
+
+def _report(summary, src):
+    """One warning line per frame that missed the stopping rule; the exit code."""
+    if summary.get("converged", True) is not False:
+        return 0
+    print(f"ipc-taichi: warning: {src}: the stopping rule was not met "
+          f"({summary['iterations']} iterations); written with IPCCONV = F", file=sys.stderr)
+    return EXIT_UNCONVERGED
+
+
+def run_couple(args):
+    model = model_from_args(args)
+    src, dst = _single_pair(args, "couple")
+    couple_file(src, dst, model=model, **_product_options(args))
+    return 0
+
+
+def output_name(input_path, output_dir, suffix):
+    """``OUTDIR/<input name without .fits/.fit/.fts>SUFFIX.fits`` (``.asdf``
+    for an ASDF input; a compressed input gives an uncompressed output)."""
+    name = os.path.basename(input_path)
+    ext = ".fits"
+    if name.lower().endswith(".gz"):
+        name = name[:-3]
+    for known in (".fits", ".fit", ".fts", ".asdf"):
+        if name.lower().endswith(known):
+            name = name[:-len(known)]
+            ext = ".asdf" if known == ".asdf" else ".fits"
+    return os.path.join(output_dir, name + suffix + ext)
+
+
+def run_decouple(args):
+    model = model_from_args(args)  # bad model options are usage errors, found before any work
+    if args.workers is not None and args.workers < 1:
+        raise IPCInputError(f"--workers {args.workers}: needs at least 1 worker")
+    if args.tile is not None and args.tile < 1:
+        raise IPCInputError(f"--tile {args.tile}: needs N >= 1")
+    if args.output_dir is None:
+        src, dst = _single_pair(args, "decouple")
+        summary = decouple_file(src, dst, model=model, progress=not args.quiet,
+                                **_product_options(args))
+        return _report(summary, src)
+    if args.output is not None:
+        raise IPCInputError("decouple: give either --output OUT.fits or -o OUTDIR")
+    if not os.path.isdir(args.output_dir):
+        raise IPCInputError(f"{args.output_dir}: output directory does not exist")
+    pairs = [(p, output_name(p, args.output_dir, args.suffix)) for p in args.paths]
+    seen = {}
+    for src, dst in pairs:
+        if dst in seen:
+            raise IPCInputError(f"{src} and {seen[dst]} would both be written to {dst}")
+        if os.path.exists(src) and os.path.exists(dst) and os.path.samefile(src, dst):
+            raise IPCInputError(f"{src}: would be overwritten by its own output")
+        seen[dst] = src
+    return _run_many(pairs, args, model)
+
+
+def _remove_temporaries(pairs, since):
+    """Temporary files a stopped run's workers left beside the outputs."""
+    for _, dst in pairs:
+        parent = os.path.dirname(os.path.abspath(dst))
+        for path in glob.glob(os.path.join(parent, ".tmp-*" + os.path.basename(dst))):
+            try:
+                if os.path.getmtime(path) >= since:
+                    os.unlink(path)
+            except OSError:
+                pass
+
+
+def _run_many(pairs, args, model):
+    """Decouple many files; one line per failure; exit code 1 if any failed."""
+    show = not args.quiet and sys.stderr.isatty()
+    bar = None
+    if show:
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(pairs), unit="file", desc="decouple", file=sys.stderr)
+
+    def report(res):
+        if not res["ok"]:
+            print(f"ipc-taichi: error: {res['error']}", file=sys.stderr, flush=True)
+        if bar is not None:
+            bar.update(1)
+
+    options = dict(_product_options(args), model=model)
+    since = time.time() - 1
+    try:
+        if len(pairs) == 1 and not args.scheduler:
+            results = []
+            for src, dst in pairs:  # no cluster for a single file
+                res = {"input": src, "output": dst}
+                try:
+                    res.update(ok=True, **decouple_file(src, dst, **options))
+                except (ValueError, OSError, RuntimeError) as exc:
+                    text = str(exc).splitlines()[0] if str(exc) else ""
+                    res.update(ok=False, error=text if text.startswith(str(src)) else
+                               f"{src}: {text or type(exc).__name__}")
+                report(res)
+                results.append(res)
+        else:
+            from ..cluster import close_client, decouple_files, local_client
+
+            workers = args.workers or min(len(pairs), os.cpu_count() or 1)
+            client = local_client(args.scheduler, workers)
+            try:
+                results = decouple_files(pairs, options, client, progress=report)
+            finally:
+                close_client(client)
+    except KeyboardInterrupt:
+        _remove_temporaries(pairs, since)
+        raise
+    finally:
+        if bar is not None:
+            bar.close()
+    failed = [r for r in results if not r["ok"]]
+    if failed:
+        print(f"ipc-taichi: {len(failed)} of {len(results)} files failed", file=sys.stderr)
+        return EXIT_FAILED
+    code = 0
+    for r in results:
+        code = max(code, _report(r, r["input"]))
+    if not args.quiet:
+        print(f"decoupled {len(results)} files into {args.output_dir}", file=sys.stderr)
+    return code

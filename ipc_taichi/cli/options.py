@@ -1,0 +1,69 @@
+"""The options shared by the subcommands, defined once.
+
+``--law/--geometry/--edge`` (the coupling model), ``--max-iter/--tol`` (the
+stopping rule), ``--arch/--precision`` (the Taichi runtime) and ``--quiet``.
+:func:`model_from_args` turns the model options into one
+:class:`ipc_taichi.model.CouplingModel`, resolved (and checked) once, before
+any work.
+"""
+
+from .. import iteration
+from ..model import EDGES, CouplingModel
+
+__all__ = ["add_model_arguments", "add_iteration_arguments", "add_runtime_arguments",
+           "add_quiet_argument", "model_from_args"]
+
+
+def add_model_arguments(parser):
+    """``--law``, ``--geometry``, ``--edge``: the coupling model."""
+    g = parser.add_argument_group("coupling model")
+    g.add_argument("--law", default="donlon2018",
+                   help="coupling law, in electrons of collected charge: donlon2018 (default; "
+                        "the 20000*sqrt2 form that reproduces the paper's tables), "
+                        "donlon2018_printed (Eq. 7 as printed), constant:ALPHA (fraction, "
+                        "e.g. constant:0.0125), "
+                        "parametric:AMP_DIFF,SCALE_DIFF,AMP_LEVEL,SCALE_LEVEL,FLOOR, "
+                        "table:FILE.npz (arrays 'signal', 'alpha')")
+    g.add_argument("--geometry", default="nearest",
+                   help="neighbour weights multiplying alpha, e.g. "
+                        "'horizontal=1,vertical=0.9,diagonal=0.1,second=0.02' (default: nearest, "
+                        "4 neighbours with weight 1)")
+    g.add_argument("--edge", choices=EDGES, default="zero",
+                   help="beyond the frame: 'zero' = zero-signal pixels that take charge "
+                        "(default, the paper's choice); 'isolated' = no coupling across the "
+                        "edge, total charge conserved")
+    return g
+
+
+def add_iteration_arguments(parser):
+    """``--max-iter``, ``--tol``: the paper's stopping rule."""
+    g = parser.add_argument_group("stopping rule")
+    g.add_argument("--max-iter", type=int, default=iteration.MAX_ITER,
+                   help=f"at most this many Jacobi iterations (default {iteration.MAX_ITER}, "
+                        "as the paper)")
+    g.add_argument("--tol", type=float, default=iteration.TOL,
+                   help=f"stop when max|S_q - S_(q-1)| <= TOL * max|S_q| (default "
+                        f"{iteration.TOL:g}, as the paper); 0 runs exactly --max-iter iterations")
+    return g
+
+
+def add_runtime_arguments(parser):
+    """``--arch``, ``--precision``: the Taichi runtime."""
+    r = parser.add_argument_group("runtime")
+    r.add_argument("--arch", choices=("auto", "cpu", "cuda"), default=None,
+                   help="Taichi arch (default: $IPC_TAICHI_ARCH or auto = CUDA if present, "
+                        "else CPU)")
+    r.add_argument("--precision", choices=("f64", "f32"), default=None,
+                   help="floating precision (default: $IPC_TAICHI_PRECISION or f64)")
+    return r
+
+
+def add_quiet_argument(parser, what="progress bars and notices"):
+    """``--quiet``."""
+    parser.add_argument("--quiet", action="store_true", help=f"no {what}")
+
+
+def model_from_args(args):
+    """The :class:`CouplingModel` of ``--law/--geometry/--edge`` (bad values
+    raise :class:`ipc_taichi.IPCInputError` and friends: usage errors)."""
+    return CouplingModel.resolve(args.law, args.geometry, args.edge)
