@@ -1,49 +1,124 @@
-"""Input preparation and the runner of the shared step kernel.
+"""The engine behind :func:`ipc_taichi.couple` and :func:`ipc_taichi.decouple`.
 
-Public functions validate and prepare arrays here (native-endian, contiguous,
-the runtime's float type, bad pixels masked, a zero border of ``reach``
-pixels around the frame; see :mod:`ipc_taichi._kernels`), then call the kernel
-through a :class:`Stepper`. On the CPU the NumPy arrays are handed to Taichi
-without a copy; on CUDA they are uploaded once and stay on the device between
-iterations, only the two stopping-rule numbers come back per iteration.
+Per call: validate the input once (:func:`as_stack`: a NumPy-readable array, a
+PyTorch tensor, or a CuPy/JAX/DLPack array seen through PyTorch, see
+:mod:`ipc_taichi._device`), take the :class:`Workspace` of the frame shape from
+a small cache (its padded working arrays are allocated once per shape and reused
+by every frame of a stack and by later calls), and run the frames one by one:
+
+1. the frame goes into the unpadded ``io`` buffer: on CUDA one host-to-device
+   copy from page-locked memory (NumPy input), or a device copy into the
+   output tensor (device input); on the CPU the caller's frame is read in place
+   when it can be (runtime dtype, contiguous, no bad pixel);
+2. ``load`` (one kernel) pads and initialises on the device: the padded
+   estimate ``S_0 = M``, the ``ok`` array, bad pixels zeroed, one flag saying
+   whether any pixel is bad (which picks the kernel variant that gates alphas);
+   on the CPU NumPy does the same (:func:`_load_host`);
+3. one ``step`` kernel per iteration: Jacobi step plus the two stopping-rule
+   maxima, reduced in the same launch on the GPU layout, by the host over the
+   CPU sweep's few dozen strips (see :mod:`ipc_taichi._kernels`); only those
+   numbers come back to the host;
+4. ``store`` (one kernel; a NumPy copy on the CPU) copies the estimate into
+   ``io``; on CUDA with NumPy output one device-to-host copy into the
+   (page-locked) result;
+5. bad pixels get their kept values back (masked: input value, non-finite:
+   NaN) from the input, on the input's own device.
+
+Kernels are compiled once per configuration (:mod:`ipc_taichi._kernels` caches
+them) and never per shape or per call: frame sizes are run-time arguments.
 """
+
+import collections
+import dataclasses
+import threading
 
 import numpy as np
 
 from . import runtime
-from ._kernels import KernelConfig, get_step_kernel
+from ._device import (DEVICE_KINDS, HostCopies, check_torch_device, from_torch, kind_of,
+                      pinned_empty, pinned_for_call, to_torch, torch_dtype)
+from ._kernels import (FAN_IN, TREE_LEVELS, KernelConfig, get_frame_kernels,
+                       get_step_kernel, partials_count)
 from .errors import IPCInputError
 
 # rows per task of the CPU sweep: a strip re-evaluates the dy-row pairs above
 # it (1/STRIP_ROWS extra work for nearest neighbours) and 2 cores need a few
 # dozen tasks to balance when other processes share them
 STRIP_ROWS = 32
+# threads the ``pixel`` layout aims for: an H100 keeps 132 x 2048 = 270 k
+# threads resident, twice that hides the tail of the last wave
+PIXEL_THREADS = 1 << 19
+MIN_RUN_ROWS = 8
+WORKSPACES_KEPT = 2  # frame shapes whose buffers stay allocated
+# the engine path with Taichi ndarrays and explicit copies, as on CUDA; tests
+# set it to run that path on the CPU
+FORCE_DEVICE_BUFFERS = False
+
+__all__ = ["as_stack", "Frames", "Workspace", "run_couple", "run_decouple", "interior",
+           "default_layout", "start", "STRIP_ROWS", "workspace_cache_info", "clear_workspaces",
+           "cached_workspaces"]
+
+
+def start(arch, precision):
+    return runtime.init(arch, precision)
+
+
+def default_layout(arch):
+    """The kernel layout that suits ``arch`` (see :mod:`ipc_taichi._kernels`)."""
+    return "pixel" if arch == "cuda" else "sweep"
+
+
+def interior(padded, reach):
+    """The frame inside a padded array (a view)."""
+    if reach == 0:
+        return padded
+    return padded[reach:-reach, reach:-reach]
+
+
+# --------------------------------------------------------------------------- input
+
+@dataclasses.dataclass
+class Frames:
+    """A validated input: the stack ``(n, ny, nx)`` in its own kind.
+
+    ``data`` is a NumPy array (kind ``numpy``) or a PyTorch tensor (every other
+    kind, CuPy/JAX/DLPack already wrapped); ``bad`` the untrusted-pixel mask of
+    the same kind and shape, or ``None``; ``like`` the object given (for the
+    result's kind and mask).
+    """
+
+    data: object
+    bad: object
+    was_2d: bool
+    kind: str
+    like: object
+
+    @property
+    def shape(self):
+        return tuple(self.data.shape)
+
+    @property
+    def on_device(self):
+        return self.kind in DEVICE_KINDS
 
 
 def as_stack(data, what, mask=None):
-    """Validate ``data`` (and ``mask``) as a 2-D frame or a 3-D stack.
-
-    Returns ``(array, mask, was_2d)``: the array as a stack ``(n, ny, nx)`` and
-    the boolean mask (True = pixel not trusted) broadcast to it, or ``None``.
-    A NumPy masked array contributes its own mask.
-    """
+    """Validate ``data`` (and ``mask``) as a 2-D frame or a 3-D stack; returns :class:`Frames`."""
+    kind = kind_of(data)
+    like = data
+    if kind != "numpy":
+        return _device_stack(to_torch(data, kind), kind, like, what, mask)
     if isinstance(data, np.ma.MaskedArray):
         own = np.ma.getmaskarray(data)
-        mask = own if mask is None else (own | np.asarray(mask, dtype=bool))
+        mask = own if mask is None else (own | _host_mask(mask))
         data = data.data
     try:
         arr = np.asarray(data)
     except Exception as exc:  # ragged lists and the like
         raise IPCInputError(f"{what}: cannot be read as an array ({exc})") from None
-    if arr.dtype.kind not in "iuf":
-        raise IPCInputError(f"{what}: dtype {arr.dtype} is not a real number type")
-    if arr.ndim not in (2, 3):
-        raise IPCInputError(f"{what}: expected a 2-D frame (ny, nx) or a 3-D stack "
-                            f"(n, ny, nx), got {arr.ndim}-D shape {arr.shape}")
-    if arr.size == 0:
-        raise IPCInputError(f"{what}: empty array of shape {arr.shape}")
+    _check_shape(arr.shape, arr.dtype.kind in "iuf", str(arr.dtype), what)
     if mask is not None:
-        mask = np.asarray(mask)
+        mask = _host_mask(mask)
         if mask.dtype != bool:
             raise IPCInputError(f"{what}: mask must be boolean (True = not trusted), got "
                                 f"dtype {mask.dtype}")
@@ -58,148 +133,478 @@ def as_stack(data, what, mask=None):
     if was_2d:
         arr = arr[np.newaxis]
         mask = None if mask is None else mask[np.newaxis]
-    return arr, mask, was_2d
+    return Frames(arr, mask, was_2d, "numpy", like)
 
 
-def prepare_frame(frame, dtype, reach=0, mask=None):
-    """The frame in ``dtype`` inside a zero border of ``reach`` pixels, bad
-    pixels (non-finite, or True in ``mask``) zeroed, and the validity mask of
-    the frame (``None`` when every pixel is good). Returns ``(padded, valid)``;
-    one copy of the frame."""
-    ny, nx = frame.shape
-    padded = np.zeros((ny + 2 * reach, nx + 2 * reach), dtype=dtype)
-    inner = interior(padded, reach)
-    inner[...] = frame
-    valid = np.isfinite(inner)
+def _host_mask(mask):
+    if kind_of(mask) != "numpy":
+        return np.asarray(to_torch(mask, kind_of(mask)).cpu().numpy())
+    return np.asarray(mask)
+
+
+def _check_shape(shape, real, dtype, what):
+    if not real:
+        raise IPCInputError(f"{what}: dtype {dtype} is not a real number type")
+    if len(shape) not in (2, 3):
+        raise IPCInputError(f"{what}: expected a 2-D frame (ny, nx) or a 3-D stack "
+                            f"(n, ny, nx), got {len(shape)}-D shape {tuple(shape)}")
+    if int(np.prod(shape)) == 0:
+        raise IPCInputError(f"{what}: empty array of shape {tuple(shape)}")
+
+
+def _device_stack(tensor, kind, like, what, mask):
+    import torch
+
+    tensor = tensor.detach()  # the result is not differentiable
+    dt = tensor.dtype
+    real = (dt.is_floating_point or dt in (torch.int8, torch.int16, torch.int32, torch.int64,
+                                           torch.uint8)) and not dt.is_complex
+    _check_shape(tuple(tensor.shape), real, str(dt), what)
+    bad = None
     if mask is not None:
-        valid &= ~mask
-    if valid.all():
-        return padded, None
-    inner[~valid] = 0.0
-    return padded, valid
+        mk = kind_of(mask)
+        bad = to_torch(mask, mk) if mk != "numpy" else torch.from_numpy(
+            np.ascontiguousarray(np.asarray(mask)))
+        if bad.dtype != torch.bool:
+            raise IPCInputError(f"{what}: mask must be boolean (True = not trusted), got "
+                                f"dtype {bad.dtype}")
+        try:
+            bad = torch.broadcast_to(bad.to(tensor.device), tensor.shape)
+        except RuntimeError:
+            raise IPCInputError(f"{what}: mask of shape {tuple(bad.shape)} does not fit data "
+                                f"of shape {tuple(tensor.shape)}") from None
+        if not bool(bad.any()):
+            bad = None
+    was_2d = tensor.dim() == 2
+    if was_2d:
+        tensor = tensor.unsqueeze(0)
+        bad = None if bad is None else bad.unsqueeze(0)
+    return Frames(tensor, bad, was_2d, kind, like)
 
 
-def restore_bad(out, frame, valid):
-    """Put the bad pixels back into a result frame: masked pixels keep their
-    input value, non-finite pixels become NaN."""
-    if valid is None:
-        return out
-    bad = ~valid
-    kept = np.asarray(frame)[bad].astype(out.dtype)
-    kept[~np.isfinite(kept)] = np.nan
-    out[bad] = kept
-    return out
-
-
-def as_result(stack, was_2d, like):
+def as_result(stack, frames):
     """The result stack shaped and typed as the input was given: a frame for a
-    2-D input, a masked array (with the input's mask) for a masked input."""
-    result = stack[0] if was_2d else stack
-    if isinstance(like, np.ma.MaskedArray):
-        result = np.ma.MaskedArray(result, mask=np.ma.getmaskarray(like).copy())
+    2-D input, a masked array (with the input's mask) for a masked input, the
+    input's kind for a device array."""
+    result = stack[0] if frames.was_2d else stack
+    if frames.kind != "numpy":
+        return from_torch(result, frames.kind, frames.like)
+    if isinstance(frames.like, np.ma.MaskedArray):
+        result = np.ma.MaskedArray(result, mask=np.ma.getmaskarray(frames.like).copy())
     return result
 
 
-def interior(padded, reach):
-    """The frame inside a padded array (a view)."""
-    if reach == 0:
-        return padded
-    return padded[reach:-reach, reach:-reach]
+# --------------------------------------------------------------------------- workspace
+
+class Workspace:
+    """The working arrays for frames of one shape, allocated once and reused.
+
+    ``prev`` and ``nxt`` (padded by ``reach``, zero border never written), the
+    padded ``ok`` byte array (border 1 for the ``zero`` edge, 0 for
+    ``isolated``; interior written by ``load``), the per-thread ``partials``
+    of the stopping-rule maxima, the sweep's ring rows, and on the device path
+    the unpadded ``io`` frame and ``mask`` bytes. On the CPU they are NumPy
+    arrays (Taichi reads them in place); on CUDA Taichi ndarrays in device
+    memory.
+    """
+
+    def __init__(self, info, shape, config, device_buffers):
+        ny, nx = shape
+        r = config.reach
+        self.shape = shape
+        self.reach = r
+        self.layout = config.layout
+        self.device_buffers = device_buffers
+        self.dtype = np.dtype(info.dtype)
+        padded = (ny + 2 * r, nx + 2 * r)
+        if config.layout == "sweep":
+            self.strip = STRIP_ROWS
+        else:
+            self.strip = max(MIN_RUN_ROWS, -(-ny * nx // PIXEL_THREADS))
+            # the tree reduces at most FAN_IN ** TREE_LEVELS partials
+            self.strip = max(self.strip, -(-ny * nx // FAN_IN ** TREE_LEVELS))
+        self.strip = min(self.strip, ny)
+        self.n_partials = partials_count(config.layout, ny, nx, self.strip)
+        self._made = []
+        self.prev = self._zeros(padded, self.dtype)
+        self.nxt = self._zeros(padded, self.dtype)
+        ok = np.full(padded, 1 if config.edge == "zero" else 0, dtype=np.uint8)
+        interior(ok, r)[...] = 1  # see ok_clean
+        self.ok = ok if not device_buffers else self._zeros(padded, np.uint8)
+        if device_buffers:
+            self.ok.from_numpy(ok)
+        else:
+            self._made.append(ok.nbytes)
+        self.partials = self._zeros((self.n_partials, 2), self.dtype)
+        if config.layout == "sweep":
+            ring = (-(-ny // STRIP_ROWS), max(1, len(config.vertical)), config.ring_depth,
+                    padded[1])
+        else:
+            ring = (1, 1, 1, 1)
+        self.ring = self._zeros(ring, self.dtype)
+        self.flag = self._zeros((1,), self.dtype)
+        self.no_mask = self._zeros((1, 1), np.uint8)
+        self._io = None
+        self._mask = None
+        self.ok_clean = True  # the interior of ``ok`` is all 1
+        self._staging = None
+        self.copies = HostCopies(info.arch) if device_buffers else None
+
+    def _zeros(self, shape, dtype, fill=0):
+        if not self.device_buffers:
+            arr = np.full(shape, fill, dtype=dtype)
+        else:
+            import taichi as ti
+
+            kind = {np.dtype(np.float64): ti.f64, np.dtype(np.float32): ti.f32,
+                    np.dtype(np.uint8): ti.u8}[np.dtype(dtype)]
+            arr = ti.ndarray(dtype=kind, shape=shape)
+            arr.fill(fill)
+        self._made.append(int(np.prod(shape)) * np.dtype(dtype).itemsize)
+        return arr
+
+    @property
+    def nbytes(self):
+        """Bytes of every buffer this workspace has allocated."""
+        return sum(self._made)
+
+    @property
+    def io(self):
+        """The unpadded frame on the device (device path, NumPy input)."""
+        if self._io is None:
+            self._io = self._zeros(self.shape, self.dtype)
+        return self._io
+
+    def mask_buffer(self):
+        if self._mask is None:
+            self._mask = self._zeros(self.shape, np.uint8)
+        return self._mask
+
+    def staging(self, arch):
+        """A host frame in the runtime dtype, page-locked on CUDA, for inputs
+        that must be converted before the upload (other dtype, strided)."""
+        if self._staging is None:
+            self._staging = pinned_empty(self.shape, self.dtype, arch=arch)
+        return self._staging
+
+    def read(self, array, n):
+        """The first ``n`` values of a small buffer (maxima, flag) as floats."""
+        if not self.device_buffers:
+            return [float(v) for v in array.reshape(-1)[:n]]
+        host = np.empty(n, dtype=self.dtype)
+        self.copies.download(host, array)  # copies host.nbytes from the start
+        return [float(v) for v in host]
+
+    def clear_flag(self):
+        if self.device_buffers:
+            self.copies.upload(self.flag, np.zeros(1, dtype=self.dtype))
+        else:
+            self.flag[0] = 0
+
+    def maxima(self):
+        """``(max|dst - src|, max|dst|)`` of the last step: the tree's result in
+        row 0 (``pixel``), or the maximum over the strips' rows (``sweep``)."""
+        if self.layout != "sweep":
+            return tuple(self.read(self.partials, 2))
+        if self.device_buffers:
+            rows = np.empty((self.n_partials, 2), dtype=self.dtype)
+            self.copies.download(rows, self.partials)
+        else:
+            rows = self.partials
+        d, s = rows.max(axis=0)
+        return float(d), float(s)
+
+    def estimate(self, src):
+        """The current estimate as a NumPy frame (a view on the CPU path, a
+        copy from the device otherwise)."""
+        padded = src.to_numpy() if self.device_buffers else src
+        return interior(padded, self.reach)
 
 
-def default_layout(arch):
-    """The kernel layout that suits ``arch`` (see :mod:`ipc_taichi._kernels`)."""
-    return "pixel" if arch == "cuda" else "sweep"
+# one cache per thread: two threads of one process never share working arrays
+_workspaces_by_thread = {}
 
 
-class Stepper:
-    """Runs ``dst = base + sign * flow(src)`` for one law/geometry/edge on
-    padded arrays (see :func:`prepare_frame`)."""
+def _cache():
+    return _workspaces_by_thread.setdefault(threading.get_ident(), collections.OrderedDict())
 
-    def __init__(self, model, masked, info, layout=None):
-        law, geometry, edge = model.law, model.geometry, model.edge
-        half = geometry.half_stencil()
+
+def _workspace(info, shape, config, device_buffers):
+    key = (info.arch, info.precision, tuple(shape), config.offsets, config.edge, config.layout,
+           device_buffers)
+    cache = _cache()
+    ws = cache.get(key)
+    if ws is None:
+        while len(cache) >= WORKSPACES_KEPT:
+            cache.popitem(last=False)
+        ws = cache[key] = Workspace(info, shape, config, device_buffers)
+    else:
+        cache.move_to_end(key)
+    return ws
+
+
+def cached_workspaces():
+    """This thread's cached workspaces, least recently used first."""
+    return list(_cache().values())
+
+
+def clear_workspaces():
+    """Free every cached workspace (their memory goes back to Taichi or NumPy)."""
+    _workspaces_by_thread.clear()
+
+
+def workspace_cache_info():
+    """``{key: bytes}`` of this thread's cached workspaces (tests, benchmark)."""
+    return {k: ws.nbytes for k, ws in _cache().items()}
+
+
+runtime.on_reset(clear_workspaces)
+
+
+# --------------------------------------------------------------------------- parameters
+
+_params = collections.OrderedDict()
+
+
+def _model_arrays(model, info, device_buffers):
+    """The law's and geometry's kernel arguments (cached: one upload per model)."""
+    law, half = model.law, model.geometry.half_stencil()
+    dtype = info.dtype
+    p = law.kernel_params().astype(dtype)
+    w = np.array([wts for _, wts in half], dtype=dtype)
+    table = np.ascontiguousarray(law.table if law.kind == "table" else np.zeros((2, 2)),
+                                 dtype=dtype)
+    key = (info.arch, info.precision, device_buffers, p.tobytes(), w.tobytes(),
+           table.shape, table.tobytes())
+    hit = _params.get(key)
+    if hit is None:
+        hit = tuple(_to_taichi(a) if device_buffers else a for a in (p, w, table))
+        _params[key] = hit
+        while len(_params) > 8:
+            _params.popitem(last=False)
+    return hit
+
+
+def _to_taichi(array):
+    import taichi as ti
+
+    kind = {np.dtype(np.float64): ti.f64, np.dtype(np.float32): ti.f32}[array.dtype]
+    nd = ti.ndarray(dtype=kind, shape=array.shape)
+    nd.from_numpy(array)
+    return nd
+
+
+runtime.on_reset(_params.clear)
+
+
+# --------------------------------------------------------------------------- running
+
+class _Run:
+    """One call: the model's kernels and arguments, the workspace, the frames."""
+
+    def __init__(self, frames, model, info, layout, what):
+        self.frames = frames
         self.info = info
-        self.dtype = info.dtype
-        self.config = KernelConfig(
-            offsets=tuple(u for u, _ in half), law_kind=law.kind, edge=edge,
-            masked=masked, precision=info.precision,
-            layout=layout or default_layout(info.arch))
-        self.kernel = get_step_kernel(self.config)
-        self.reach = self.config.reach
-        dtype = self.dtype
-        self.on_device = info.arch == "cuda"
-        self.p = self.to_runtime(law.kernel_params().astype(dtype))
-        self.w = self.to_runtime(np.array([wts for _, wts in half], dtype=dtype))
-        table = law.table if law.kind == "table" else np.zeros((2, 2))
-        self.table = self.to_runtime(np.ascontiguousarray(table, dtype=dtype))
-        self.stats = self.to_runtime(np.zeros(2, dtype=dtype))
-        self.all_ok = self.to_runtime(np.ones((1, 1), dtype=np.uint8))
-        self.rings = {}
+        layout = layout or default_layout(info.arch)
+        offsets = tuple(u for u, _ in model.geometry.half_stencil())
+        self.configs = {m: KernelConfig(offsets=offsets, law_kind=model.law.kind,
+                                        edge=model.edge, masked=m, precision=info.precision,
+                                        layout=layout) for m in (False, True)}
+        if frames.on_device:
+            check_torch_device(frames.data, info.arch, what)
+        # working arrays live where the kernels run (Taichi ndarrays on CUDA);
+        # a tensor's frame is handed to Taichi as it is, a NumPy frame copied
+        device_buffers = info.arch == "cuda" or FORCE_DEVICE_BUFFERS
+        self.device_buffers = device_buffers
+        self.copy_frames = device_buffers and not frames.on_device
+        self.ws = _workspace(info, frames.shape[1:], self.configs[False], device_buffers)
+        self.p, self.w, self.table = _model_arrays(model, info, device_buffers)
+        self.kernels = get_frame_kernels(info.precision)
 
-    def ok_array(self, padded_shape, valid):
-        """The ``ok`` byte array for the kernel: 1 where a pixel may couple.
-        Border pixels may couple with the zero edge (they take charge), not
-        with the isolated edge; bad pixels never do."""
-        if not self.config.uses_ok:
-            return None
-        ok = np.full(padded_shape, 1 if self.config.edge == "zero" else 0, dtype=np.uint8)
-        interior(ok, self.reach)[...] = True if valid is None else valid
-        return self.to_runtime(ok)
+    def output(self, out):
+        """The result stack (the caller's ``out`` after checks, or a new one)."""
+        shape, frames = self.frames.shape, self.frames
+        if frames.on_device:
+            import torch
 
-    def to_runtime(self, array):
-        """A NumPy array as the kernel will take it (device ndarray on CUDA)."""
-        if not self.on_device:
-            return array
-        import taichi as ti
+            dt = torch_dtype(self.info.dtype)
+            if out is None:
+                return torch.empty(shape, dtype=dt, device=frames.data.device)
+            out = to_torch(out, kind_of(out))
+            out3 = out.unsqueeze(0) if out.dim() == 2 else out
+            if tuple(out3.shape) != shape or out3.dtype != dt or not out3.is_contiguous() \
+                    or out3.device != frames.data.device:
+                raise IPCInputError(f"out: expected a contiguous {dt} array of shape "
+                                    f"{shape[1:] if frames.was_2d else shape} on "
+                                    f"{frames.data.device}")
+            return out3
+        if out is None:
+            return np.empty(shape, dtype=self.info.dtype)
+        out3 = out[np.newaxis] if isinstance(out, np.ndarray) and out.ndim == 2 else out
+        if not (isinstance(out3, np.ndarray) and out3.shape == shape
+                and out3.dtype == self.info.dtype and out3.flags.c_contiguous
+                and out3.flags.writeable):
+            raise IPCInputError(f"out: expected a writeable C-contiguous {self.info.dtype} "
+                                f"NumPy array of shape {shape[1:] if frames.was_2d else shape}")
+        return out3
 
-        kind = {np.dtype(np.float64): ti.f64, np.dtype(np.float32): ti.f32,
-                np.dtype(np.uint8): ti.u8}[array.dtype]
-        nd = ti.ndarray(dtype=kind, shape=array.shape)
-        nd.from_numpy(array)
-        return nd
+    def pinned(self, out):
+        """Page-lock the NumPy input and output for this call (CUDA only)."""
+        host = self.frames.kind == "numpy" and self.info.arch == "cuda"
+        data = self.frames.data if host and _uploadable(self.frames.data, self.ws.dtype) \
+            else None
+        return pinned_for_call([data, out if host else None], self.info.arch, enabled=host)
 
-    def zeros(self, shape):
-        if not self.on_device:
-            return np.zeros(shape, dtype=self.dtype)
-        import taichi as ti
-
-        nd = ti.ndarray(dtype=ti.f64 if self.dtype == np.float64 else ti.f32, shape=shape)
-        nd.fill(0)
-        return nd
-
-    def to_numpy(self, array):
-        return array.to_numpy() if self.on_device else array
-
-    def ring(self, padded_shape):
-        """Scratch rows of the CPU sweep for frames of this padded shape."""
-        cfg = self.config
-        if cfg.layout != "sweep":
-            shape = (1, 1, 1, 1)
+    def load(self, k, out):
+        """Frame ``k`` into the workspace; returns ``(base, io, any_bad)``: the
+        unpadded measured frame the steps read (bad pixels zeroed), the result
+        frame, and whether any pixel is bad."""
+        frames, ws = self.frames, self.ws
+        bad = None if frames.bad is None else frames.bad[k]
+        if not self.device_buffers:
+            io = out[k]
+            host = frames.data[k]
+            if frames.on_device:  # a CPU tensor: the same memory seen by NumPy
+                io, host = io.numpy(), host.numpy()
+                bad = None if bad is None else bad.numpy()
+            base, any_bad = _load_host(host, bad, io, ws)
+            return base, io, any_bad
+        if frames.on_device:
+            io = out[k]
+            io.copy_(frames.data[k])
+            mask = ws.no_mask if bad is None else bad.to(dtype=_torch_u8()).contiguous()
         else:
-            strips = -(-(padded_shape[0] - 2 * self.reach) // STRIP_ROWS)
-            shape = (strips, max(1, len(cfg.vertical)), cfg.ring_depth, padded_shape[1])
-        if shape not in self.rings:
-            self.rings = {shape: self.zeros(shape)}  # one frame size at a time
-        return self.rings[shape]
+            io = ws.io
+            host = frames.data[k]
+            if not _uploadable(host, ws.dtype):
+                staging = ws.staging(self.info.arch)
+                np.copyto(staging, host, casting="unsafe")
+                host = staging
+            ws.copies.upload(io, host)
+            mask = ws.no_mask
+            if bad is not None:
+                mask = ws.mask_buffer()
+                ws.copies.upload(mask, np.ascontiguousarray(bad, dtype=np.uint8))
+        ws.clear_flag()
+        self.kernels.load(io, io, 0, mask, 0 if bad is None else 1, ws.prev, ws.ok, ws.reach,
+                          ws.flag)
+        any_bad = ws.read(ws.flag, 1)[0] != 0
+        ws.ok_clean = not any_bad
+        return io, io, any_bad
 
-    def __call__(self, src, base, dst, ok, sign):
-        """One step on padded arrays; returns ``(max|dst - src|, max|dst|)``
-        over good pixels."""
-        if self.on_device:
-            self.stats.fill(0)
+    def step(self, masked, src, base, dst, sign):
+        """One step; returns ``(max|dst - src|, max|dst|)`` over good pixels."""
+        ws = self.ws
+        kernel = get_step_kernel(self.configs[masked])
+        kernel(src, base, dst, ws.ok, self.p, self.w, self.table, float(sign), ws.partials,
+               ws.ring, ws.strip)
+        return ws.maxima()
+
+    def finish(self, k, io, src, out, any_bad):
+        """The estimate in padded ``src`` into the result frame ``io`` (= frame
+        ``k`` of ``out``, or the device frame that is then copied there)."""
+        ws = self.ws
+        if self.device_buffers:
+            self.kernels.store(src, io, ws.reach)
+            if self.copy_frames:
+                ws.copies.download(out[k], io)
         else:
-            self.stats[:] = 0
-        ring = self.ring(src.shape)
-        self.kernel(src, base, dst, self.all_ok if ok is None else ok, self.p, self.w,
-                    self.table, float(sign), self.stats, ring, STRIP_ROWS)
-        stats = self.to_numpy(self.stats)
-        return float(stats[0]), float(stats[1])
+            # on the CPU a copy by NumPy costs less than a kernel launch
+            np.copyto(io, interior(src, ws.reach))
+        if any_bad:
+            self.restore(k, out)
+
+    def restore(self, k, out):
+        """Bad pixels keep their input value (masked) or become NaN (not finite)."""
+        frames = self.frames
+        src = frames.data[k]
+        if frames.on_device:
+            import torch
+
+            kept = src.to(out.dtype)
+            bad = ~torch.isfinite(kept)
+            kept = torch.where(bad, torch.full_like(kept, float("nan")), kept)
+            if frames.bad is not None:
+                bad = bad | frames.bad[k]
+            out[k] = torch.where(bad, kept, out[k])
+            return
+        kept = np.asarray(src).astype(out.dtype, copy=False)
+        bad = ~np.isfinite(kept)
+        if frames.bad is not None:
+            bad |= frames.bad[k]
+        values = kept[bad].astype(out.dtype)
+        values[~np.isfinite(values)] = np.nan
+        out[k][bad] = values
 
 
-def start(arch, precision):
-    return runtime.init(arch, precision)
+def _load_host(host, bad, io, ws):
+    """What the ``load`` kernel does (see :func:`ipc_taichi._kernels.get_frame_kernels`),
+    in NumPy, on the CPU: Taichi's CPU code for this per-pixel copy is scalar and
+    about twice as slow as NumPy's vectorised passes, and a launch costs more
+    than the work on small tiles. Returns ``(base, any_bad)``: ``base`` is the
+    caller's frame itself when it can be read as it is (runtime dtype,
+    C-contiguous, no bad pixel), else ``io`` holding it with bad pixels zeroed."""
+    if not _uploadable(host, ws.dtype):
+        np.copyto(io, host, casting="unsafe")
+        host = io
+    # a finite sum means every pixel is finite (NaN and inf propagate): one
+    # read of the frame and no temporary in the common case
+    if bad is None and np.isfinite(host.sum()):
+        good, any_bad = None, False
+    else:
+        good = np.isfinite(host)
+        if bad is not None:
+            good &= ~bad
+        any_bad = not good.all()
+    base = host
+    if any_bad:
+        if host is not io:
+            np.copyto(io, host)
+        io[~good] = 0.0
+        base = io
+    interior(ws.prev, ws.reach)[...] = base
+    if any_bad or not ws.ok_clean:
+        interior(ws.ok, ws.reach)[...] = True if good is None else good
+        ws.ok_clean = not any_bad
+    return base, any_bad
 
 
-__all__ = ["as_stack", "prepare_frame", "restore_bad", "as_result", "interior", "Stepper",
-           "start", "STRIP_ROWS", "default_layout"]
+def _uploadable(array, dtype):
+    return array.dtype == dtype and array.flags.c_contiguous
+
+
+def _torch_u8():
+    import torch
+
+    return torch.uint8
+
+
+def run_couple(frames, model, info, layout, out=None):
+    """The forward model on every frame; returns the result stack."""
+    run = _Run(frames, model, info, layout, "signal")
+    ws = run.ws
+    out = run.output(out)
+    with run.pinned(out):
+        for k in range(frames.shape[0]):
+            base, io, any_bad = run.load(k, out)
+            run.step(any_bad, ws.prev, base, ws.nxt, +1.0)
+            run.finish(k, io, ws.nxt, out, any_bad)
+    return out
+
+
+def run_decouple(frames, model, info, layout, iterate, out=None):
+    """Decouple every frame; ``iterate(k, step, ws, base)`` runs the Jacobi
+    iterations of frame ``k`` (the rules live with the caller) and returns the
+    padded array holding the answer."""
+    run = _Run(frames, model, info, layout, "measured")
+    out = run.output(out)
+    with run.pinned(out):
+        for k in range(frames.shape[0]):
+            base, io, any_bad = run.load(k, out)
+
+            def step(src, dst, masked=any_bad, base=base):
+                return run.step(masked, src, base, dst, -1.0)
+
+            answer = iterate(k, step, run.ws)
+            run.finish(k, io, answer, out, any_bad)
+    return out

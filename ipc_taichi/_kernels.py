@@ -1,4 +1,5 @@
-"""Taichi kernels: one coupling step, shared by the forward model and the decoupler.
+"""Taichi kernels: one coupling step, shared by the forward model and the decoupler,
+and the kernels that bring a frame in and out of the padded working arrays.
 
 ``step`` computes, for every pixel,
 
@@ -9,14 +10,37 @@
 - one Jacobi iteration:      base = M, src = S_{q-1}, sign = -1  ->  S_q   (paper Eq. 6)
 
 and fuses the stopping-rule reductions ``max|dst - src|`` and ``max|dst|``
-into the same pass.
+into the same launch.
 
-Arrays are **padded**: every frame lives inside a border of ``reach`` pixels
-(the geometry's furthest offset) that holds zero signal and is never written.
-With the ``zero`` edge those border pixels are exactly the paper's
+Arrays
+------
+``src`` and ``dst`` are **padded**: the frame lives inside a border of ``reach``
+pixels (the geometry's furthest offset) that holds zero signal and is never
+written. With the ``zero`` edge those border pixels are exactly the paper's
 "outside = zero signal" pixels, so no pixel needs a bounds test. With the
 ``isolated`` edge, or with bad pixels, an ``ok`` byte array (1 = may couple)
-zeroes every alpha that touches the border or a bad pixel.
+zeroes every alpha that touches the border or a bad pixel. ``base`` is the
+*unpadded* frame (it is read at the pixel itself only), so the measured frame
+needs no padded copy. :func:`get_frame_kernels` gives ``load`` (unpadded frame
+-> padded estimate, bad pixels zeroed, ``ok`` written, one flag set if any
+pixel is bad) and ``store`` (padded estimate -> unpadded frame), so padding and
+initialisation happen where the arrays live (on the GPU for CUDA).
+
+The stopping-rule maxima
+------------------------
+Each thread (a CPU strip, a GPU column run) keeps its two running maxima in
+registers and stores them, with a plain store, into its own row of a
+``partials`` array of shape ``(P, 2)``; no atomic is issued. The same kernel
+``pixel`` launch then reduces ``partials`` in place by a tree of
+:data:`TREE_LEVELS` parallel passes, each thread taking the maximum of
+:data:`FAN_IN` entries (strided, so neighbouring threads read neighbouring
+addresses; indices past the end are clamped to the last entry, which repeats a
+value and leaves the maximum unchanged); row 0 then holds
+``(max|dst - src|, max|dst|)``. The CPU ``sweep`` writes one row per strip (a
+few dozen) and the host takes their maximum: on a CPU each extra parallel task
+costs a wake-up of the thread pool, more than the few dozen comparisons. A
+maximum is exact in any order, so the result does not depend on the layout or
+the reduction.
 
 Two loop layouts, chosen at compile time (``KernelConfig.layout``):
 
@@ -33,16 +57,20 @@ Two loop layouts, chosen at compile time (``KernelConfig.layout``):
     inlined range-reduced polynomial (:func:`make_exp`, < 1e-15 relative error),
     which makes the sweep 1.7x faster than with the libm call.
 ``pixel`` (CUDA)
-    Thread ``(i, t)`` handles columns ``t, t + T, t + 2T, ...`` of row ``i``,
-    so neighbouring threads read neighbouring addresses (coalesced), each
-    thread keeps its own running maxima and does one atomic per quantity.
-    Both alphas of a pair are computed (arithmetic is cheap on a GPU, memory
-    traffic is not). The layout also runs on the CPU, which is how it is
-    tested without a GPU.
+    One thread per pixel column run: thread ``(b, x)`` walks down rows
+    ``b*R .. b*R + R - 1`` of column ``x`` (``R`` = ``strip``, chosen per frame
+    so that there are enough threads to fill a GPU). Neighbouring threads
+    handle neighbouring columns, so every row access of a warp is coalesced.
+    The alpha of each vertical pair ``(dy, 0)`` is computed once and carried
+    down in registers (3 alphas per pixel instead of 4 for nearest
+    neighbours); the other pairs' alphas are computed by both pixels
+    (arithmetic is cheap on a GPU, memory traffic is not). The layout also
+    runs on the CPU, which is how it is tested without a GPU.
 
 Compile-time (``ti.static``) choices form a frozen, hashable config. Law
 coefficients and geometry weights are run-time ndarray arguments, so changing
-a number never recompiles.
+a number never recompiles; frame sizes, the border width and the strip height
+are run-time arguments too.
 """
 
 import functools
@@ -50,11 +78,14 @@ from dataclasses import dataclass
 
 from . import runtime
 
-__all__ = ["KernelConfig", "get_step_kernel", "make_alpha", "make_exp", "LAYOUTS"]
+__all__ = ["KernelConfig", "get_step_kernel", "get_frame_kernels", "make_alpha", "make_exp",
+           "LAYOUTS", "partials_count", "FAN_IN", "TREE_LEVELS", "MAX_FINITE"]
 
 LAYOUTS = ("sweep", "pixel")
-THREADS_PER_ROW = 128  # ``pixel`` layout: threads sharing one row
 SPREAD = 512  # ``sweep`` layout: loop iterations per strip (see step_sweep)
+FAN_IN = 32  # entries one thread reduces per tree level
+TREE_LEVELS = 5  # tree passes: up to FAN_IN ** TREE_LEVELS (33.5 M) partials
+MAX_FINITE = {"f64": 1.7976931348623157e308, "f32": 3.4028234663852886e38}
 
 
 @dataclass(frozen=True)
@@ -84,6 +115,13 @@ class KernelConfig:
     def vertical(self):
         """Indices of the offsets with ``dy > 0`` (ring-buffered in the sweep)."""
         return tuple(k for k, (dy, _) in enumerate(self.offsets) if dy > 0)
+
+
+def partials_count(layout, height, width, strip):
+    """Rows of the ``partials`` array a step on a ``height x width`` frame
+    (unpadded) writes: one per strip (sweep) or per column run (pixel)."""
+    strips = -(-height // strip)
+    return strips if layout == "sweep" else strips * width
 
 
 def make_exp(real_is_f64):
@@ -172,6 +210,68 @@ def make_alpha(law_kind, precision, fast_exp=True):
     return alpha
 
 
+def make_tree_reduction():
+    """``(shrink, passes)``: with ``n1 = shrink(n0)``, ..., ``n5 = shrink(n4)``
+    worked out at the start of the kernel (its serial prologue, so that the
+    passes run back to back with no serial task between them),
+    ``passes(part, n0, ..., n5)`` leaves the maximum of ``part[:n0]`` (shape
+    ``(P, 2)``) in ``part[0]``, by :data:`TREE_LEVELS` parallel passes of
+    :data:`FAN_IN` (see the module docstring). Called at a kernel's top level,
+    each pass is a parallel loop of its own, run after the previous one."""
+    import taichi as ti
+
+    @ti.func
+    def level(part: ti.template(), n, g_count):
+        # thread g reads g, g + G, g + 2G, ... (coalesced across threads) and
+        # writes entry g < G, which no other thread of this pass reads
+        for g in range(g_count):
+            m0 = part[g, 0]
+            m1 = part[g, 1]
+            for j in ti.static(range(1, FAN_IN)):
+                k = ti.min(g + j * g_count, n - 1)
+                m0 = ti.max(m0, part[k, 0])
+                m1 = ti.max(m1, part[k, 1])
+            part[g, 0] = m0
+            part[g, 1] = m1
+
+    @ti.func
+    def shrink(n):
+        """Entries left after one pass over ``n``."""
+        return (n + FAN_IN - 1) // FAN_IN
+
+    @ti.func
+    def passes(part: ti.template(), n0, n1, n2, n3, n4, n5):
+        level(part, n0, n1)
+        level(part, n1, n2)
+        level(part, n2, n3)
+        level(part, n3, n4)
+        level(part, n4, n5)
+
+    assert TREE_LEVELS == 5  # the passes above are written out
+    return shrink, passes
+
+
+@functools.lru_cache(maxsize=None)
+def get_reduce_kernel(precision):
+    """A kernel running the tree reduction alone (the steps fuse it; tests
+    and the benchmark call it on its own)."""
+    import taichi as ti
+
+    real = ti.f64 if precision == "f64" else ti.f32
+    shrink, passes = make_tree_reduction()
+
+    @ti.kernel
+    def reduce_partials(part: ti.types.ndarray(dtype=real, ndim=2), n: ti.i32):
+        n1 = shrink(n)
+        n2 = shrink(n1)
+        n3 = shrink(n2)
+        n4 = shrink(n3)
+        n5 = shrink(n4)
+        passes(part, n, n1, n2, n3, n4, n5)
+
+    return reduce_partials
+
+
 @functools.lru_cache(maxsize=None)
 def get_step_kernel(config):
     """Build (once per config) the Taichi kernel for one coupling step."""
@@ -195,8 +295,12 @@ def get_step_kernel(config):
     left_extra = tuple(tuple(range(-offsets[k][1], 0)) for k in vertical)
     right_extra = tuple(max(0, -offsets[k][1]) for k in vertical)
     prologue_lo = tuple(min(0, -offsets[k][1]) for k in vertical)
+    # the pixel layout carries the alphas of the vertical pairs (dy, 0) down its column
+    vcarry_at = tuple(sum(ddy for ddy, ddx in offsets[:k] if ddx == 0) for k in range(n_off))
+    n_vcarry = max(1, sum(dy for dy, dx in offsets if dx == 0))
 
     alpha = make_alpha(config.law_kind, config.precision, fast_exp=sweep)
+    shrink, passes = make_tree_reduction()
 
     @ti.func
     def pair(src: ti.template(), ok: ti.template(), p: ti.template(), table: ti.template(),
@@ -219,7 +323,7 @@ def get_step_kernel(config):
         return (flow + a_plus * (wm * src[y + dy, x + dx] - wp * sv)
                 + a_minus * (wp * src[y - dy, x - dx] - wm * sv))
 
-    # the two layouts take the same arguments (the pixel layout ignores ring and strip)
+    # the two layouts take the same arguments (the pixel layout ignores ring)
     frame = ti.types.ndarray(dtype=real, ndim=2)
     vector = ti.types.ndarray(dtype=real, ndim=1)
     mask = ti.types.ndarray(dtype=ti.u8, ndim=2)
@@ -227,7 +331,7 @@ def get_step_kernel(config):
 
     @ti.kernel
     def step_sweep(src: frame, base: frame, dst: frame, ok: mask, p: vector, w: frame,
-                   table: frame, sign: real, stats: vector, ring: scratch, strip: ti.i32):
+                   table: frame, sign: real, part: frame, ring: scratch, strip: ti.i32):
         h = src.shape[0] - 2 * r
         wd = src.shape[1] - 2 * r
         # One strip per task. Taichi 1.7's CPU backend hands out a parallel
@@ -286,40 +390,130 @@ def get_step_kernel(config):
                                 a_minus = ring[s, kv, (i - dy + r) % depth, x - dx]
                                 ring[s, kv, (i + r) % depth, x] = a_plus
                             flow = pair_flow(flow, src, w, y, x, sv, k, a_plus, a_minus)
-                        v = base[y, x] + sign * flow
+                        v = base[i, j] + sign * flow
                         dst[y, x] = v
                         dmax = ti.max(dmax, ti.abs(v - sv))
                         smax = ti.max(smax, ti.abs(v))
-                ti.atomic_max(stats[0], dmax)
-                ti.atomic_max(stats[1], smax)
+                part[s, 0] = dmax
+                part[s, 1] = smax
 
     @ti.kernel
     def step_pixel(src: frame, base: frame, dst: frame, ok: mask, p: vector, w: frame,
-                   table: frame, sign: real, stats: vector, ring: scratch, strip: ti.i32):
+                   table: frame, sign: real, part: frame, ring: scratch, strip: ti.i32):
         h = src.shape[0] - 2 * r
         wd = src.shape[1] - 2 * r
-        threads = ti.min(wd, THREADS_PER_ROW)
-        for i, t in ti.ndrange(h, threads):
+        runs = (h + strip - 1) // strip
+        n0 = runs * wd
+        n1 = shrink(n0)
+        n2 = shrink(n1)
+        n3 = shrink(n2)
+        n4 = shrink(n3)
+        n5 = shrink(n4)
+        for b, j in ti.ndrange(runs, wd):
+            x = j + r
+            i0 = b * strip
+            i1 = ti.min(h, i0 + strip)
             dmax = ti.cast(0.0, real)
             smax = ti.cast(0.0, real)
-            y = i + r
-            for m in range((wd - t + threads - 1) // threads):
-                x = t + m * threads + r
+            # vertical pairs (dy, 0) that end in the run's first dy rows start above it
+            carry = ti.Vector([0.0] * n_vcarry, dt=real)
+            for k in ti.static(range(n_off)):
+                dy, dx = ti.static(offsets[k])
+                if ti.static(dx == 0):
+                    at = ti.static(vcarry_at[k])
+                    for m in ti.static(range(dy)):
+                        carry[at + m] = pair(src, ok, p, table, i0 + r - dy + m, x, dy, 0)
+            for i in range(i0, i1):
+                y = i + r
                 sv = src[y, x]
                 flow = ti.cast(0.0, real)
                 for k in ti.static(range(n_off)):
                     dy, dx = ti.static(offsets[k])
                     a_plus = pair(src, ok, p, table, y, x, dy, dx)
-                    a_minus = pair(src, ok, p, table, y - dy, x - dx, dy, dx)
+                    a_minus = ti.cast(0.0, real)
+                    if ti.static(dx == 0):
+                        at = ti.static(vcarry_at[k])
+                        a_minus = carry[at]
+                        for m in ti.static(range(dy - 1)):
+                            carry[at + m] = carry[at + m + 1]
+                        carry[at + dy - 1] = a_plus
+                    else:
+                        a_minus = pair(src, ok, p, table, y - dy, x - dx, dy, dx)
                     flow = pair_flow(flow, src, w, y, x, sv, k, a_plus, a_minus)
-                v = base[y, x] + sign * flow
+                v = base[i, j] + sign * flow
                 dst[y, x] = v
                 dmax = ti.max(dmax, ti.abs(v - sv))
                 smax = ti.max(smax, ti.abs(v))
-            ti.atomic_max(stats[0], dmax)
-            ti.atomic_max(stats[1], smax)
+            part[b * wd + j, 0] = dmax
+            part[b * wd + j, 1] = smax
+        passes(part, n0, n1, n2, n3, n4, n5)
 
     return step_sweep if sweep else step_pixel
 
 
-runtime.on_reset(get_step_kernel.cache_clear)
+@dataclass(frozen=True)
+class FrameKernels:
+    """The kernels that move a frame in and out of the padded working arrays."""
+
+    load: object
+    store: object
+
+
+@functools.lru_cache(maxsize=None)
+def get_frame_kernels(precision):
+    """Build (once per precision) the ``load`` and ``store`` kernels.
+
+    ``load(src, io, copy_in, mask, use_mask, prev, ok, r, flag)``: for every
+    pixel of the unpadded frame ``src``, a pixel is *bad* when it is not finite
+    or (with ``use_mask`` != 0) ``mask`` is non-zero there. The frame with bad
+    pixels set to 0 goes into ``io`` (the measured frame the Jacobi step reads
+    as ``base``; with ``copy_in`` == 0, ``src`` is ``io`` and only bad pixels
+    are written) and into the padded estimate ``prev`` (S_0 = M); ``ok`` is 1
+    for good pixels and 0 for bad ones, and ``flag[0]`` (0 before the launch)
+    becomes 1 if any pixel is bad (a plain store of the same value by every bad
+    pixel: no atomic). ``r`` is the border width of ``prev`` and ``ok``; their
+    borders are not touched. One parallel loop: a serial task more would cost
+    a thread-pool wake-up on the CPU.
+
+    ``store(src, io, r)``: the frame inside the padded ``src`` into ``io``.
+    """
+    import taichi as ti
+
+    real = ti.f64 if precision == "f64" else ti.f32
+    frame = ti.types.ndarray(dtype=real, ndim=2)
+    vector = ti.types.ndarray(dtype=real, ndim=1)
+    mask = ti.types.ndarray(dtype=ti.u8, ndim=2)
+    biggest = MAX_FINITE[precision]
+
+    @ti.kernel
+    def load(src: frame, io: frame, copy_in: ti.i32, bad_in: mask, use_mask: ti.i32,
+             prev: frame, ok: mask, r: ti.i32, flag: vector):
+        for i, j in ti.ndrange(io.shape[0], io.shape[1]):
+            v = src[i, j]
+            good = ti.abs(v) <= biggest  # False for NaN and +-inf
+            if use_mask != 0:
+                if bad_in[i, j] != 0:
+                    good = False
+            if not good:
+                v = ti.cast(0.0, real)
+                flag[0] = 1.0
+            if copy_in != 0 or not good:
+                io[i, j] = v
+            prev[i + r, j + r] = v
+            ok[i + r, j + r] = ti.cast(ti.select(good, 1, 0), ti.u8)
+
+    @ti.kernel
+    def store(src: frame, io: frame, r: ti.i32):
+        for i, j in ti.ndrange(io.shape[0], io.shape[1]):
+            io[i, j] = src[i + r, j + r]
+
+    return FrameKernels(load, store)
+
+
+def _clear_caches():
+    get_step_kernel.cache_clear()
+    get_frame_kernels.cache_clear()
+    get_reduce_kernel.cache_clear()
+
+
+runtime.on_reset(_clear_caches)

@@ -32,7 +32,7 @@ from .datasets import star_field, uniform_frame
 from .laws import donlon2018
 from .reference import decouple_numpy
 
-__all__ = ["run_benchmark", "measure_floor"]
+__all__ = ["run_benchmark", "measure_floor", "measure_cuda", "CupyPeer", "render_cuda"]
 
 SIZES = (512, 2048, 4096)
 KINDS = ("uniform", "stars")
@@ -128,6 +128,8 @@ def _worker(spec):
     """Run one configuration on one frame; return a dict (runs in a subprocess)."""
     if spec["config"] == "floor":
         return measure_floor()
+    if spec["config"] == "cuda-suite":
+        return measure_cuda(spec["size"], spec["repeats"], spec["stack"])
     config, measured_path, truth_path, repeats = (spec["config"], spec["measured"],
                                                   spec["truth"], spec["repeats"])
     base_rss = _vm("VmRSS")
@@ -152,6 +154,11 @@ def _worker(spec):
         t0 = time.perf_counter()
         run(small)
         result["compile_s"] = max(0.0, first - (time.perf_counter() - t0))
+        from ipc_taichi import _engine
+
+        # the timed runs allocate their working buffers (reused from run to
+        # run): the peak memory below includes them
+        _engine.clear_workspaces()
     elif config == "numpy":
         def run(frame):
             return decouple_numpy(frame)
@@ -184,6 +191,344 @@ def _worker(spec):
 def _worker_main():
     spec = json.loads(sys.argv[2])
     print(json.dumps(_worker(spec)))
+
+
+# --------------------------------------------------------------------------- CUDA rows
+
+CUDA_SIZE = 4096
+STACK_FRAMES = 16
+
+# The CuPy peer: one Jacobi step of the paper's decoupler as a plain CUDA
+# kernel (one thread per pixel, 4 alphas, zero signal outside the frame),
+# driven from CuPy with the same stopping and divergence rules
+# (ipc_taichi.iteration) and CuPy's own max-reductions. Written for this
+# benchmark; CuPy is only a peer here, never a dependency.
+PEER_SOURCE = r"""
+extern "C" __global__ void jacobi_step(const REAL* __restrict__ s, const REAL* __restrict__ m,
+                                       REAL* __restrict__ out, const int ny, const int nx,
+                                       const REAL amp_diff, const REAL inv_diff,
+                                       const REAL amp_level, const REAL inv_level,
+                                       const REAL floor_) {
+    const int x = blockIdx.x * blockDim.x + threadIdx.x;
+    const int y = blockIdx.y * blockDim.y + threadIdx.y;
+    if (x >= nx || y >= ny) return;
+    const long i = (long)y * nx + x;
+    const REAL c = s[i];
+    REAL nb[4];
+    nb[0] = x > 0 ? s[i - 1] : (REAL)0;
+    nb[1] = x + 1 < nx ? s[i + 1] : (REAL)0;
+    nb[2] = y > 0 ? s[i - nx] : (REAL)0;
+    nb[3] = y + 1 < ny ? s[i + nx] : (REAL)0;
+    REAL flow = 0;
+#pragma unroll
+    for (int k = 0; k < 4; ++k) {
+        const REAL n = nb[k];
+        const REAL a = amp_diff * exp(-fabs(c - n) * inv_diff)
+                     + amp_level * exp(-sqrt(c * c + n * n) * inv_level) + floor_;
+        flow += a * (n - c);
+    }
+    out[i] = m[i] - flow;
+}
+"""
+
+
+class CupyPeer:
+    """The CuPy peer for one precision (see :data:`PEER_SOURCE`)."""
+
+    def __init__(self, precision):
+        import cupy as cp
+
+        from . import laws
+
+        self.cp = cp
+        self.dtype = np.float64 if precision == "f64" else np.float32
+        real = "double" if precision == "f64" else "float"
+        self.kernel = cp.RawKernel(f"#define REAL {real}\n" + PEER_SOURCE, "jacobi_step")
+        self.params = tuple(self.dtype(v) for v in laws.donlon2018().kernel_params())
+
+    def decouple(self, m):
+        """Device-resident: ``m`` a CuPy array; returns ``(signal, iterations)``."""
+        from . import iteration
+
+        cp = self.cp
+        ny, nx = m.shape
+        prev, nxt = m.copy(), cp.empty_like(m)
+        block = (32, 8, 1)
+        grid = ((nx + 31) // 32, (ny + 7) // 8, 1)
+        deltas, signals = [], []
+        for q in range(1, iteration.MAX_ITER + 1):
+            self.kernel(grid, block, (prev, m, nxt, np.int32(ny), np.int32(nx)) + self.params)
+            deltas.append(float(cp.abs(nxt - prev).max()))
+            signals.append(float(cp.abs(nxt).max()))
+            iteration.check_divergence(deltas, signals)
+            prev, nxt = nxt, prev
+            if iteration.met(deltas[-1], signals[-1], iteration.TOL):
+                break
+        return prev, q
+
+
+def _floor_kernels(precision):
+    """Taichi kernels for the floor on the device: the alpha arithmetic alone
+    (4 alphas per pixel from one load, no neighbour loads), a device copy, and
+    a plain one-thread-per-pixel step without the stopping-rule maxima."""
+    import taichi as ti
+
+    from ._kernels import make_alpha
+
+    real = ti.f64 if precision == "f64" else ti.f32
+    alpha = make_alpha("parametric", precision, fast_exp=False)
+    frame = ti.types.ndarray(dtype=real, ndim=2)
+    vector = ti.types.ndarray(dtype=real, ndim=1)
+
+    @ti.kernel
+    def alpha_math(a: frame, o: frame, p: vector, table: frame):
+        for i, j in ti.ndrange(a.shape[0], a.shape[1]):
+            c = a[i, j]
+            acc = ti.cast(0.0, real)
+            for k in ti.static(range(4)):
+                n = c + (k + 1) * 37.0
+                acc += alpha(c, n, p, table) * (n - c)
+            o[i, j] = acc
+
+    @ti.kernel
+    def copy(a: frame, o: frame):
+        for i, j in ti.ndrange(a.shape[0], a.shape[1]):
+            o[i, j] = a[i, j]
+
+    @ti.kernel
+    def plain_step(s: frame, m: frame, o: frame, p: vector, table: frame):
+        for i, j in ti.ndrange(s.shape[0], s.shape[1]):
+            c = s[i, j]
+            flow = ti.cast(0.0, real)
+            for k in ti.static(range(4)):
+                dy, dx = ti.static(((0, 1), (0, -1), (1, 0), (-1, 0))[k])
+                n = ti.cast(0.0, real)
+                if 0 <= i + dy < s.shape[0] and 0 <= j + dx < s.shape[1]:
+                    n = s[i + dy, j + dx]
+                flow += alpha(c, n, p, table) * (n - c)
+            o[i, j] = m[i, j] - flow
+
+    return alpha_math, copy, plain_step
+
+
+def _timed(fn, sync, repeats):
+    """``(median ms, best ms, last result)`` of ``repeats`` warm runs."""
+    result = fn()
+    sync()
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        result = fn()
+        sync()
+        times.append((time.perf_counter() - t0) * 1e3)
+    return statistics.median(times), min(times), result
+
+
+def measure_cuda(size=CUDA_SIZE, repeats=10, stack=STACK_FRAMES, arch="cuda",
+                 precisions=("f64", "f32")):
+    """The CUDA rows: device-resident, host in and out, a stack, the CuPy peer
+    and the floor, on one ``size`` x ``size`` uniform frame (law donlon2018,
+    nearest neighbours, the paper's stopping rule). Runs in a worker process.
+
+    ``arch="cpu"`` runs the same code with PyTorch CPU tensors as the "device"
+    (the tests do, to keep this function honest without a GPU); the CuPy peer
+    then is skipped. Returns ``{"rows": [...], "notes": [...], "device": ...}``.
+    """
+    import ipc_taichi
+
+    from . import _device, _engine, runtime
+    from .reference import couple_reference
+
+    notes = []
+    try:
+        import torch
+
+        if arch == "cuda" and not torch.cuda.is_available():
+            torch = None
+            notes.append("PyTorch here has no CUDA (a CPU build): the device-resident rows "
+                         "were not run; install a CUDA build of torch for them.")
+    except ImportError:
+        torch = None
+        notes.append("PyTorch is not installed: the device-resident rows were not run.")
+    try:
+        if arch != "cuda":
+            raise ImportError("CuPy peer runs on CUDA only")
+        import cupy as cp
+    except ImportError:
+        cp = None
+        notes.append("CuPy is not installed (or no CUDA): the CuPy peer rows were not run.")
+    truth = uniform_frame(size)
+    measured64 = couple_reference(truth)
+    rows = []
+    device = "CPU (PyTorch CPU tensors stand in for the device)" if arch != "cuda" else "CUDA"
+    for precision in precisions:
+        info = runtime.init(arch, precision)
+        dtype = info.dtype
+        measured = measured64.astype(dtype)
+        tdev = "cuda" if arch == "cuda" else "cpu"
+        if arch == "cuda":
+            device = _device.cuda_driver().device_name()
+
+        def sync():
+            import taichi as ti
+
+            ti.sync()
+            if torch is not None and arch == "cuda":
+                torch.cuda.synchronize()
+
+        def add(row, median, best, signal, iterations, frames=1):
+            err = float(np.abs(np.asarray(signal, dtype=np.float64).reshape(-1, size, size)[0]
+                               - truth).max())
+            rows.append({"row": row, "precision": precision, "size": size, "frames": frames,
+                         "median_ms": median, "best_ms": best, "iterations": iterations,
+                         "max_error": err})
+
+        def run(data, **kw):
+            return ipc_taichi.decouple(data, arch=arch, precision=precision, full_output=True,
+                                       **kw)
+
+        # NumPy in and out: page-locked for the call (the default)
+        _engine.clear_workspaces()
+        free0 = _device.cuda_driver().memory()[0] if arch == "cuda" else None
+        med, best, (sig, fi) = _timed(lambda: run(measured), sync, repeats)
+        add("host in/out (NumPy)", med, best, sig, fi.iterations)
+        if free0 is not None:
+            used = free0 - _device.cuda_driver().memory()[0]
+            rows[-1]["device_bytes"] = int(used)
+        (ws,) = _engine.cached_workspaces()
+        rows[-1]["workspace_bytes"] = ws.nbytes
+        rows[-1]["frame_bytes"] = measured.nbytes
+        # NumPy in and out from buffers the caller keeps page-locked
+        pin_in = _device.pinned_empty(measured.shape, dtype, arch=arch)
+        pin_in[...] = measured
+        pin_out = _device.pinned_empty(measured.shape, dtype, arch=arch)
+        med, best, (sig, fi) = _timed(lambda: run(pin_in, out=pin_out), sync, repeats)
+        add("host in/out, pinned buffers", med, best, sig, fi.iterations)
+        # the same with pageable copies (no page-locking)
+        saved = _device.PIN_MIN_BYTES
+        _device.PIN_MIN_BYTES = 1 << 62
+        try:
+            med, best, (sig, fi) = _timed(lambda: run(measured), sync, repeats)
+        finally:
+            _device.PIN_MIN_BYTES = saved
+        add("host in/out, pageable copies", med, best, sig, fi.iterations)
+        # the copies alone, through the workspace the runs above used
+        if ws.device_buffers:
+            med_up, best_up, _ = _timed(lambda: ws.copies.upload(ws.io, pin_in), sync, repeats)
+            add("upload one frame (pinned)", med_up, best_up, sig, 0)
+            med_dn, best_dn, _ = _timed(lambda: ws.copies.download(pin_out, ws.io), sync,
+                                        repeats)
+            add("download one frame (pinned)", med_dn, best_dn, sig, 0)
+        # device-resident: a tensor in, a tensor out, nothing crosses the bus
+        dev_ms = None
+        if torch is not None:
+            t_in = torch.from_numpy(measured).to(tdev)
+            med, best, (sig, fi) = _timed(lambda: run(t_in), sync, repeats)
+            add("device-resident (torch)", med, best, sig.cpu().numpy(), fi.iterations)
+            dev_ms = med
+            t_in = sig = None
+        # a stack of frames, NumPy in and out
+        cube = np.broadcast_to(measured, (stack,) + measured.shape).copy()
+        med, best, (sig, fis) = _timed(lambda: run(cube), sync, max(1, repeats // 4))
+        add(f"{stack}-frame stack, host in/out, per frame", med / stack, best / stack, sig,
+            fis[0].iterations, frames=stack)
+        cube = sig = None  # release 2 x 16 frames before the next rows
+        # the CuPy peer
+        if cp is not None:
+            peer = CupyPeer(precision)
+            m_dev = cp.asarray(measured)
+            med, best, (s, q) = _timed(lambda: peer.decouple(m_dev), sync, repeats)
+            add("CuPy peer, device-resident", med, best, cp.asnumpy(s), q)
+            med, best, (s, q) = _timed(lambda: cp.asnumpy(peer.decouple(cp.asarray(measured))[0]),
+                                       sync, repeats)
+            add("CuPy peer, host in/out (pageable)", med, best, s, q)
+            m_dev = None
+            cp.get_default_memory_pool().free_all_blocks()
+        # the floor, on this device, with Taichi ndarrays
+        import taichi as ti
+
+        alpha_math, copy, plain_step = _floor_kernels(precision)
+        kind = ti.f64 if precision == "f64" else ti.f32
+        a, o = ti.ndarray(kind, measured.shape), ti.ndarray(kind, measured.shape)
+        a.from_numpy(measured)
+        p, table = ti.ndarray(kind, 5), ti.ndarray(kind, (2, 2))
+        p.from_numpy(laws_params(dtype))
+        table.fill(0)
+        for name, fn in (("floor: alpha arithmetic alone (4 alphas/pixel)",
+                          lambda: alpha_math(a, o, p, table)),
+                         ("floor: device copy of the frame", lambda: copy(a, o)),
+                         ("floor: plain step (4 alphas, no maxima)",
+                          lambda: plain_step(a, a, o, p, table))):
+            med, best, _ = _timed(fn, sync, repeats)
+            rows.append({"row": name, "precision": precision, "size": size, "frames": 1,
+                         "median_ms": med, "best_ms": best})
+        a = o = None
+        if dev_ms is not None:
+            rows.append({"row": "note: device-resident per iteration", "precision": precision,
+                         "size": size, "frames": 1, "median_ms": dev_ms / max(1, fi.iterations),
+                         "best_ms": dev_ms / max(1, fi.iterations)})
+        _engine.clear_workspaces()
+    return {"rows": rows, "notes": notes, "device": device, "arch": arch}
+
+
+def laws_params(dtype):
+    """donlon2018's kernel parameters in ``dtype``."""
+    return donlon2018().kernel_params().astype(dtype)
+
+
+MUST_SHOW = {
+    ("device-resident (torch)", "f64"): 3.0, ("device-resident (torch)", "f32"): 1.5,
+    ("host in/out (NumPy)", "f64"): 20.0, ("host in/out (NumPy)", "f32"): 10.0,
+}
+
+
+def render_cuda(cuda):
+    """The CUDA section of RESULTS.md."""
+    if not cuda:
+        return ""
+    if not cuda["rows"]:
+        return "## CUDA\n\nNo CUDA row was measured.\n" + "".join(
+            f"- {n}\n" for n in cuda["notes"])
+    lines = ["## CUDA", "", f"Device: {cuda['device']}. Frame {cuda['rows'][0]['size']} x "
+             f"{cuda['rows'][0]['size']} uniform 0..60000, law donlon2018, nearest neighbours, "
+             "the paper's stopping rule. Median and best of warm runs (synchronised).", "",
+             "| what | precision | median [ms] | best [ms] | iterations | max error | target |",
+             "|---|---|---:|---:|---:|---:|---|"]
+    judged = cuda.get("arch") == "cuda" and cuda["rows"][0]["size"] == 4096
+    for r in cuda["rows"]:
+        target = MUST_SHOW.get((r["row"], r["precision"])) if judged else None
+        verdict = "" if target is None else (
+            f"<= {target} ms: {'met' if r['median_ms'] <= target else 'NOT met'}")
+        it = r.get("iterations")
+        err = r.get("max_error")
+        lines.append(f"| {r['row']} | {r['precision']} | {r['median_ms']:.3f} | "
+                     f"{r['best_ms']:.3f} | {'' if not it else it} | "
+                     f"{'' if err is None or not it else f'{err:.3g}'} | {verdict} |")
+    by = {(r["row"], r["precision"]): r for r in cuda["rows"]}
+    for prec in ("f64", "f32"):
+        dev = by.get(("device-resident (torch)", prec))
+        peer = by.get(("CuPy peer, device-resident", prec))
+        if dev and peer:
+            lines.append(f"- {prec}: device-resident {dev['median_ms']:.2f} ms vs CuPy peer "
+                         f"{peer['median_ms']:.2f} ms "
+                         f"({'not slower' if dev['median_ms'] <= peer['median_ms'] else 'SLOWER'}).")
+        st = next((r for r in cuda["rows"] if r["precision"] == prec
+                   and r["row"].endswith("stack, host in/out, per frame")), None)
+        up, dn = by.get(("upload one frame (pinned)", prec)), by.get(
+            ("download one frame (pinned)", prec))
+        if st and up and dn and dev:
+            one = up["median_ms"] + dn["median_ms"] + dev["median_ms"]
+            lines.append(f"- {prec}: stack per frame {st['median_ms']:.2f} ms vs upload + "
+                         f"download + device decouple of one frame {one:.2f} ms: "
+                         f"{st['median_ms'] / one:.2f}x (target <= 1.2x).")
+        host = by.get(("host in/out (NumPy)", prec))
+        if host and "workspace_bytes" in host:
+            extra = (f", device memory used by the call {host['device_bytes'] / host['frame_bytes']:.2f}x"
+                     if "device_bytes" in host else "")
+            lines.append(f"- {prec}: working buffers {host['workspace_bytes'] / host['frame_bytes']:.2f}x "
+                         f"the frame's bytes{extra} (target <= 3.5x).")
+    lines += [""] + [f"- {n}" for n in cuda["notes"]]
+    return "\n".join(lines) + "\n"
 
 
 # --------------------------------------------------------------------------- driver side
@@ -252,17 +597,20 @@ def _frames(size, kind, workdir):
 
 
 def run_benchmark(sizes=SIZES, kinds=KINDS, repeats=5, configs=None, progress=print,
-                  measure=True):
+                  measure=True, cuda_size=CUDA_SIZE, stack=STACK_FRAMES):
     """Run every configuration on every frame; return the results dict.
 
     With ``measure``, also time the floor's building blocks
-    (:func:`measure_floor`) in a subprocess of their own.
+    (:func:`measure_floor`) in a subprocess of their own and, on a machine with
+    a CUDA GPU, the CUDA rows (:func:`measure_cuda`, ``cuda_size`` frames, a
+    ``stack``-frame stack) in another.
     """
     info = machine()
     configs = list(configs or _configs(info["cuda"]))
     notes = []
     if not info["cuda"]:
-        notes.append("No CUDA GPU on this machine: the Taichi CUDA rows were not run.")
+        notes.append("No CUDA GPU on this machine: the Taichi CUDA rows and the CUDA section "
+                     "(device-resident, host in/out, stack, CuPy peer, device floor) were not run.")
     rows = []
     with tempfile.TemporaryDirectory(prefix="ipc-bench-") as workdir:
         for size in sizes:
@@ -313,7 +661,22 @@ def run_benchmark(sizes=SIZES, kinds=KINDS, repeats=5, configs=None, progress=pr
         else:
             notes.append("The floor measurement failed: "
                          + (proc.stderr.strip().splitlines() or ["no output"])[-1])
-    return {"machine": info, "repeats": repeats, "notes": notes, "rows": rows, "floor": floor}
+    cuda = None
+    if measure and info["cuda"] and cuda_size:
+        progress(f"  CUDA rows at {cuda_size}x{cuda_size} (stack of {stack})")
+        proc = subprocess.run(
+            [sys.executable, "-m", "ipc_taichi.bench", "--worker",
+             json.dumps({"config": "cuda-suite", "size": cuda_size, "repeats": max(repeats, 10),
+                         "stack": stack})],
+            capture_output=True, text=True,
+            env=dict(os.environ, ENABLE_TAICHI_HEADER_PRINT="False"))
+        if proc.returncode == 0:
+            cuda = json.loads(proc.stdout.strip().splitlines()[-1])
+        else:
+            notes.append("The CUDA rows failed: "
+                         + (proc.stderr.strip().splitlines() or ["no output"])[-1])
+    return {"machine": info, "repeats": repeats, "notes": notes, "rows": rows, "floor": floor,
+            "cuda": cuda}
 
 
 def _add_ratios(rows):
@@ -384,6 +747,9 @@ def render_markdown(results):
             f"{r.get('speedup_vs_numpy', float('nan')):.1f}x |")
     lines += ["", "Notes:", ""] + [f"- {n}" for n in results["notes"]]
     lines += ["", _floor_text(results), ""]
+    cuda = render_cuda(results.get("cuda"))
+    if cuda:
+        lines += [cuda]
     return "\n".join(lines)
 
 
@@ -443,51 +809,6 @@ def write_results(results, directory):
         with os.fdopen(fd, "w") as f:
             f.write(text)
         os.replace(tmp, path)
-
-
-# --------------------------------------------------------------------------- command line
-
-def add_parser(sub):
-    p = sub.add_parser(
-        "bench", help="time decoupling: NumPy vs Taichi CPU f64/f32 (and CUDA when present)",
-        description="Decouple the same frames with plain NumPy and with Taichi (CPU f64, f32; "
-                    "CUDA f64, f32 when a GPU is present), each configuration in a fresh "
-                    "process; print a table and write bench/results.json and bench/RESULTS.md.")
-    p.add_argument("--sizes", default=",".join(map(str, SIZES)),
-                   help="comma-separated square frame sizes (default: 512,2048,4096)")
-    p.add_argument("--kinds", default=",".join(KINDS),
-                   help="frames: uniform (0..60000) and/or stars (default: both)")
-    p.add_argument("--repeats", type=int, default=5,
-                   help="timed runs per configuration, median reported (default 5)")
-    p.add_argument("--configs", default=None,
-                   help="comma-separated subset of numpy,numpy-reference,taichi-cpu-f64,"
-                        "taichi-cpu-f32,taichi-cuda-f64,taichi-cuda-f32")
-    p.add_argument("--output", default="bench", help="directory for results (default: bench)")
-    p.set_defaults(run=run_cli)
-
-
-def run_cli(args):
-    from .errors import IPCInputError
-
-    try:
-        sizes = tuple(int(s) for s in args.sizes.split(","))
-    except ValueError:
-        raise IPCInputError(f"--sizes {args.sizes!r}: expected integers like 512,2048") from None
-    kinds = tuple(k.strip() for k in args.kinds.split(","))
-    bad = [k for k in kinds if k not in KINDS]
-    if bad or not sizes or min(sizes) < 8 or args.repeats < 1:
-        raise IPCInputError(f"bench: need sizes >= 8, kinds in {KINDS}, repeats >= 1")
-    configs = args.configs.split(",") if args.configs else None
-    print(f"ipc-taichi bench: sizes {sizes}, frames {kinds}, {args.repeats} repeats",
-          flush=True)
-    results = run_benchmark(sizes, kinds, args.repeats, configs,
-                            progress=lambda s: print(s, flush=True))
-    for note in results["notes"]:
-        print("note:", note)
-    write_results(results, args.output)
-    print(f"wrote {os.path.join(args.output, 'results.json')} and "
-          f"{os.path.join(args.output, 'RESULTS.md')}")
-    return 1 if any("error" in r for r in results["rows"]) else 0
 
 
 if __name__ == "__main__":

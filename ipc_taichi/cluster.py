@@ -35,9 +35,12 @@ __all__ = ["local_client", "decouple_files", "decouple_stack", "decouple_mosaic"
            "FileResult"]
 
 
-def local_client(scheduler=None, workers=None, memory_limit="auto"):
-    """A ``distributed.Client``: to ``scheduler`` (an address) if given, else
-    to a new ``LocalCluster`` of ``workers`` single-threaded processes."""
+def local_client(scheduler=None, workers=None, memory_limit="auto", gpus=None):
+    """A ``distributed.Client``: to ``scheduler`` (an address) if given; else,
+    with ``gpus`` (a list of GPU ids, empty for every visible GPU), to a new
+    cluster of one single-threaded worker per GPU
+    (:func:`ipc_taichi.gpus.gpu_cluster`); else to a new ``LocalCluster`` of
+    ``workers`` single-threaded processes."""
     import logging
 
     from distributed import Client, LocalCluster
@@ -47,6 +50,12 @@ def local_client(scheduler=None, workers=None, memory_limit="auto"):
     logging.getLogger("distributed").setLevel(logging.CRITICAL)
     if scheduler:
         return Client(scheduler)
+    if gpus is not None:
+        from .gpus import gpu_cluster
+
+        client = Client(gpu_cluster(list(gpus) or None))
+        client._ipc_taichi_owns_cluster = True
+        return client
     import dask
 
     workers = int(workers or min(4, os.cpu_count() or 1))

@@ -19,23 +19,23 @@ flagged in ``mask`` (e.g. from a DQ array) likewise neither give nor take
 charge, and keep their input value.
 """
 
-import numpy as np
-
-from ._engine import Stepper, as_result, as_stack, interior, prepare_frame, restore_bad, start
+from ._engine import as_result, as_stack, run_couple, start
 from .model import CouplingModel
 
 __all__ = ["couple"]
 
 
 def couple(signal, law="donlon2018", geometry=None, edge="zero", arch=None, precision=None,
-           layout=None, *, model=None, mask=None):
+           layout=None, *, model=None, mask=None, out=None):
     """Apply signal-dependent IPC to ``signal`` (2-D frame or 3-D stack).
 
     Parameters
     ----------
     signal : array_like, shape (ny, nx) or (n, ny, nx)
-        Collected charge per pixel (``signal[y, x]``). Any real dtype or byte
-        order; negative values are valid; NaN/inf mark bad pixels.
+        Collected charge per pixel (``signal[y, x]``), in electrons. Any real
+        dtype or byte order; negative values are valid; NaN/inf mark bad
+        pixels. A PyTorch tensor (CPU or CUDA), or a CuPy/JAX array (through
+        DLPack and PyTorch), stays on its device: see :mod:`ipc_taichi._device`.
     law : str, float or law object
         See :func:`ipc_taichi.laws.get_law`. Default ``"donlon2018"``.
     geometry : Geometry, dict, str or None
@@ -53,13 +53,18 @@ def couple(signal, law="donlon2018", geometry=None, edge="zero", arch=None, prec
     mask : array_like of bool, optional
         True where a pixel is not trusted (same shape as a frame or as the
         stack): it neither gives nor takes charge and keeps its input value.
-        A NumPy masked array's own mask is used the same way.
+        A NumPy masked array's own mask is used the same way. For a device
+        array the mask may be a NumPy array or a boolean array of its kind.
+    out : array, optional
+        Where to write the result: the input's kind, its shape, the runtime
+        precision, contiguous (e.g. a page-locked buffer from
+        :func:`ipc_taichi._device.pinned_empty` reused frame after frame).
 
     Returns
     -------
-    measured : ndarray
-        Same shape, in the runtime precision (float64 by default); a masked
-        array for a masked input.
+    measured : ndarray or the input's array kind
+        Same shape, in the runtime precision (float64 by default), on the
+        input's device; a masked array for a masked input.
 
     Examples
     --------
@@ -69,22 +74,8 @@ def couple(signal, law="donlon2018", geometry=None, edge="zero", arch=None, prec
     >>> float(round(m[2, 2], 6)), float(round(m[2, 3], 6))
     (9600.0, 100.0)
     """
-    stack, bad, was_2d = as_stack(signal, "signal", mask)
+    frames = as_stack(signal, "signal", mask)
     model = CouplingModel.from_arguments(law, geometry, edge, model)
     info = start(arch, precision)
-    out = np.empty(stack.shape, dtype=info.dtype)
-    steppers = {}
-    for k, frame in enumerate(stack):
-        work, valid = prepare_frame(frame, info.dtype, model.reach,
-                                    None if bad is None else bad[k])
-        masked = valid is not None
-        if masked not in steppers:
-            steppers[masked] = Stepper(model, masked, info, layout=layout)
-        step = steppers[masked]
-        ok = step.ok_array(work.shape, valid)
-        src = step.to_runtime(work)
-        dst = step.zeros(work.shape)
-        step(src, src, dst, ok, +1.0)
-        out[k] = interior(step.to_numpy(dst), step.reach)
-        restore_bad(out[k], frame, valid)
-    return as_result(out, was_2d, signal)
+    result = run_couple(frames, model, info, layout, out=out)
+    return as_result(result, frames)

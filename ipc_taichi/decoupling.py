@@ -13,10 +13,8 @@ which is what makes halo tiling exact.
 
 from dataclasses import dataclass, field
 
-import numpy as np
-
 from . import iteration
-from ._engine import Stepper, as_result, as_stack, interior, prepare_frame, restore_bad, start
+from ._engine import as_result, as_stack, run_decouple, start
 from .model import CouplingModel
 
 __all__ = ["decouple", "DecoupleInfo"]
@@ -53,15 +51,18 @@ class DecoupleInfo:
 
 def decouple(measured, law="donlon2018", geometry=None, edge="zero", max_iter=iteration.MAX_ITER,
              tol=iteration.TOL, arch=None, precision=None, callback=None, full_output=False,
-             layout=None, *, model=None, mask=None):
+             layout=None, *, model=None, mask=None, out=None):
     """Remove signal-dependent IPC from ``measured`` (2-D frame or 3-D stack).
 
     Parameters
     ----------
     measured : array_like, shape (ny, nx) or (n, ny, nx)
-        The read-out frame(s), ``measured[y, x]``. NaN/inf are bad pixels:
-        they stay NaN and do not couple. A 3-D stack (e.g. ramp groups) is
-        decoupled frame by frame.
+        The read-out frame(s), ``measured[y, x]``, in electrons. NaN/inf are
+        bad pixels: they stay NaN and do not couple. A 3-D stack (e.g. ramp
+        groups) is decoupled frame by frame in the same working buffers. A
+        PyTorch tensor (CPU or CUDA), or a CuPy/JAX array (through DLPack and
+        PyTorch), is decoupled on its device and the result returned as the
+        same kind on the same device: see :mod:`ipc_taichi._device`.
     law, geometry, edge :
         The coupling model, as for :func:`ipc_taichi.couple`.
     max_iter : int
@@ -71,7 +72,8 @@ def decouple(measured, law="donlon2018", geometry=None, edge="zero", max_iter=it
         ``max_iter`` iterations without a warning.
     callback : callable, optional
         ``callback(q, estimate)`` after each iteration (frame by frame);
-        ``estimate`` must not be modified (it is the working array on the CPU).
+        ``estimate`` is a NumPy frame that must not be modified (it is the
+        working array on the CPU; on CUDA each call copies it to the host).
     full_output : bool
         Also return a :class:`DecoupleInfo` (a list of them for a 3-D stack).
     layout : {None, "sweep", "pixel"}
@@ -84,12 +86,18 @@ def decouple(measured, law="donlon2018", geometry=None, edge="zero", max_iter=it
         True where a pixel is not trusted (e.g. DQ DO_NOT_USE), shaped like a
         frame or like the stack: it neither gives nor takes charge and keeps
         its measured value. A NumPy masked array's own mask is used the same way.
+        For a device array the mask may be a NumPy array or a boolean array of
+        its kind.
+    out : array, optional
+        Where to write the result: the input's kind, its shape, the runtime
+        precision, contiguous (e.g. a page-locked buffer from
+        :func:`ipc_taichi._device.pinned_empty` reused frame after frame).
 
     Returns
     -------
-    signal : ndarray
-        The decoupled frame(s) in the runtime precision; a masked array for a
-        masked input.
+    signal : ndarray or the input's array kind
+        The decoupled frame(s) in the runtime precision, on the input's device;
+        a masked array for a masked input.
     info : DecoupleInfo or list of DecoupleInfo
         Only with ``full_output=True``.
 
@@ -103,53 +111,44 @@ def decouple(measured, law="donlon2018", geometry=None, edge="zero", max_iter=it
     ConvergenceWarning
         ``max_iter`` was reached before the stopping rule (``tol > 0``).
     """
-    stack, bad, was_2d = as_stack(measured, "measured", mask)
+    frames = as_stack(measured, "measured", mask)
     max_iter, tol = iteration.check_arguments(max_iter, tol)
     model = CouplingModel.from_arguments(law, geometry, edge, model)
     info = start(arch, precision)
-    out = np.empty(stack.shape, dtype=info.dtype)
     infos = []
-    steppers = {}
-    for k, frame in enumerate(stack):
-        work, valid = prepare_frame(frame, info.dtype, model.reach,
-                                    None if bad is None else bad[k])
-        masked = valid is not None
-        if masked not in steppers:
-            steppers[masked] = Stepper(model, masked, info, layout=layout)
-        frame_info = DecoupleInfo(arch=info.arch, precision=info.precision,
-                                  law=model.law.describe(), geometry=model.geometry.describe(),
-                                  edge=model.edge)
-        out[k] = _iterate(steppers[masked], work, valid, max_iter, tol, callback, frame_info)
-        del work
-        restore_bad(out[k], frame, valid)
-        infos.append(frame_info)
-        iteration.warn_unconverged(frame_info, max_iter, tol,
-                                   where="" if was_2d else f"frame {k}: ")
-    signal = as_result(out, was_2d, measured)
+
+    def iterate(k, step, ws):
+        record = DecoupleInfo(arch=info.arch, precision=info.precision,
+                              law=model.law.describe(), geometry=model.geometry.describe(),
+                              edge=model.edge)
+        answer = _iterate(step, ws, max_iter, tol, callback, record)
+        infos.append(record)
+        iteration.warn_unconverged(record, max_iter, tol,
+                                   where="" if frames.was_2d else f"frame {k}: ", stacklevel=5)
+        return answer
+
+    result = run_decouple(frames, model, info, layout, iterate, out=out)
+    signal = as_result(result, frames)
     if full_output:
-        return signal, (infos[0] if was_2d else infos)
+        return signal, (infos[0] if frames.was_2d else infos)
     return signal
 
 
-def _iterate(step, work, valid, max_iter, tol, callback, record):
-    """Jacobi iterations on the padded frame ``work``; returns the estimate
-    (a view of the frame inside the padded working array)."""
-    r = step.reach
-    ok = step.ok_array(work.shape, valid)
-    base = step.to_runtime(work)
-    # S_0 = M; the border of both working arrays stays zero (never written)
-    prev = step.to_runtime(work) if step.on_device else work.copy()
-    nxt = step.zeros(work.shape)
+def _iterate(step, ws, max_iter, tol, callback, record):
+    """Jacobi iterations from ``S_0`` in ``ws.prev`` (loaded by the engine);
+    returns the padded array holding the answer. The two working arrays swap
+    roles every iteration; their borders stay zero (never written)."""
+    prev, nxt = ws.prev, ws.nxt
     for q in range(1, max_iter + 1):
-        dmax, smax = step(prev, base, nxt, ok, -1.0)
+        dmax, smax = step(prev, nxt)
         record.iterations = q
         record.max_delta.append(dmax)
         record.max_signal.append(smax)
         iteration.check_divergence(record.max_delta, record.max_signal)
         prev, nxt = nxt, prev
         if callback is not None:
-            callback(q, interior(step.to_numpy(prev), r))
+            callback(q, ws.estimate(prev))
         if iteration.met(dmax, smax, tol):
             record.converged = True
             break
-    return interior(step.to_numpy(prev), r)
+    return prev

@@ -86,3 +86,21 @@ def test_single_file_tiled(cli, tmp_path, rng):
     with fits.open(out) as hdul:
         np.testing.assert_allclose(hdul[0].data, ref, rtol=1e-9)
         assert hdul[0].header["IPCITER"] == iterations and hdul[0].header["IPCOP"] == "decouple"
+
+
+def test_one_worker_per_gpu(tmp_path, rng):
+    """``--gpus ID,ID`` runs one worker per GPU id, each with its own
+    CUDA_VISIBLE_DEVICES (checked here with fake ids and ``--arch cpu``, which
+    the workers take over the CUDA default their environment sets)."""
+    inputs = []
+    for k in range(2):
+        path = tmp_path / f"f{k}.fits"
+        fits.writeto(path, couple_reference(rng.uniform(0, 60000, (16, 20))))
+        inputs.append(path)
+    out = tmp_path / "out"
+    out.mkdir()
+    r = run_cli("decouple", *inputs, "-o", out, "--gpus", "7,9", "--arch", "cpu", "--quiet")
+    assert r.returncode == 0, r.stderr
+    for k in range(2):
+        ref, _, _, _ = decouple_reference(fits.getdata(inputs[k]))
+        np.testing.assert_allclose(fits.getdata(out / f"f{k}_decoupled.fits"), ref, rtol=1e-9)

@@ -1,4 +1,6 @@
-"""CUDA path: the same kernels, arch chosen at init. Runs only where CUDA exists."""
+"""CUDA path: the same kernels, arch chosen at init. Runs only where CUDA exists
+(``make test-gpu``); the CPU tests in test_device_arrays.py run the same API
+and the same engine path without a GPU."""
 
 import numpy as np
 import pytest
@@ -7,6 +9,13 @@ import ipc_taichi
 from ipc_taichi.reference import couple_reference
 
 pytestmark = pytest.mark.gpu
+
+
+def _torch_cuda():
+    torch = pytest.importorskip("torch")
+    if not torch.cuda.is_available():
+        pytest.skip("PyTorch has no CUDA here (a CPU build)")
+    return torch
 
 
 @pytest.mark.parametrize("precision, rtol", [("f64", 1e-10), ("f32", 1e-5)])
@@ -34,3 +43,125 @@ def test_cuda_tiled_and_f32_exp():
     assert np.abs(tiled - whole).max() <= 1e-12 * whole.max()
     fast = ipc_taichi.decouple(measured, arch="cuda", precision="f32")
     assert np.abs(fast - truth).max() < 0.05 + 6e4 * 1e-6
+
+
+@pytest.mark.parametrize("precision", ["f64", "f32"])
+def test_torch_cuda_tensors_stay_on_the_device(precision):
+    torch = _torch_cuda()
+    rng = np.random.default_rng(3)
+    truth = rng.uniform(0, 60000, (2, 190, 233))
+    truth[1, 7, 9] = np.nan
+    mask = np.zeros((190, 233), bool)
+    mask[50, 60] = True
+    measured = ipc_taichi.couple(truth, arch="cuda", precision=precision, mask=mask)
+    want = ipc_taichi.decouple(measured, arch="cuda", precision=precision, mask=mask)
+    t = torch.from_numpy(measured).cuda()
+    got = ipc_taichi.decouple(t, arch="cuda", precision=precision,
+                              mask=torch.from_numpy(mask).cuda())
+    assert got.is_cuda and got.shape == t.shape
+    assert got.dtype == (torch.float64 if precision == "f64" else torch.float32)
+    assert np.array_equal(got.cpu().numpy(), want, equal_nan=True)  # same kernels, same bits
+    coupled = ipc_taichi.couple(torch.from_numpy(truth).cuda(), arch="cuda",
+                                precision=precision, mask=mask)
+    assert coupled.is_cuda and np.array_equal(coupled.cpu().numpy(), measured, equal_nan=True)
+
+
+def test_cupy_arrays_round_trip():
+    cupy = pytest.importorskip("cupy")
+    _torch_cuda()
+    rng = np.random.default_rng(4)
+    truth = rng.uniform(0, 60000, (128, 160))
+    measured = couple_reference(truth)
+    want = ipc_taichi.decouple(measured, arch="cuda", precision="f64")
+    got = ipc_taichi.decouple(cupy.asarray(measured), arch="cuda", precision="f64")
+    assert isinstance(got, cupy.ndarray)
+    assert np.array_equal(cupy.asnumpy(got), want)
+
+
+def test_stack_reuses_buffers_and_compiles_nothing_new():
+    from ipc_taichi import _engine
+    from ipc_taichi._kernels import get_frame_kernels
+
+    rng = np.random.default_rng(5)
+    cube = np.stack([couple_reference(f) for f in rng.uniform(0, 60000, (6, 200, 180))])
+    ipc_taichi.init("cuda", "f32")
+    _engine.clear_workspaces()
+    first, infos = ipc_taichi.decouple(cube, arch="cuda", precision="f32", full_output=True)
+    cache = _engine.workspace_cache_info()
+    kernels = get_frame_kernels("f32")
+    compiled = [len(k._primal.compiled_kernels) for k in (kernels.load, kernels.store)]
+    again = ipc_taichi.decouple(cube, arch="cuda", precision="f32")
+    assert len(cache) == 1 and _engine.workspace_cache_info() == cache
+    assert [len(k._primal.compiled_kernels) for k in (kernels.load, kernels.store)] == compiled
+    assert np.array_equal(first, again) and len(infos) == 6
+    for k in range(6):
+        assert np.array_equal(first[k], ipc_taichi.decouple(cube[k], arch="cuda",
+                                                            precision="f32"))
+
+
+def test_pinned_buffers_and_device_memory():
+    from ipc_taichi import _device, _engine
+
+    ipc_taichi.init("cuda", "f64")
+    rng = np.random.default_rng(6)
+    measured = couple_reference(rng.uniform(0, 60000, (1024, 1024)))
+    want = ipc_taichi.decouple(measured, arch="cuda", precision="f64")
+    pin_in = _device.pinned_empty(measured.shape, np.float64)
+    pin_in[...] = measured
+    pin_out = _device.pinned_empty(measured.shape, np.float64)
+    _engine.clear_workspaces()
+    free0 = _device.cuda_driver().memory()[0]
+    got = ipc_taichi.decouple(pin_in, arch="cuda", precision="f64", out=pin_out)
+    used = free0 - _device.cuda_driver().memory()[0]
+    assert got is pin_out and np.array_equal(got, want)
+    (nbytes,) = _engine.workspace_cache_info().values()
+    assert nbytes <= 3.5 * measured.nbytes
+    print(f"device memory taken by the call: {used / measured.nbytes:.2f}x the frame")
+
+
+def test_cuda_bench_section_small():
+    from ipc_taichi import runtime
+    from ipc_taichi.bench import measure_cuda, render_cuda
+
+    try:
+        cuda = measure_cuda(size=512, repeats=2, stack=2)
+    finally:
+        runtime.init("cuda", "f64")
+    rows = {(r["row"], r["precision"]): r for r in cuda["rows"]}
+    for prec in ("f64", "f32"):
+        host = rows[("host in/out (NumPy)", prec)]
+        assert host["max_error"] < 0.05 and host["iterations"] >= 3
+        peer = rows.get(("CuPy peer, device-resident", prec))
+        if peer is not None:
+            assert peer["iterations"] == host["iterations"]
+            assert abs(peer["max_error"] - host["max_error"]) < 0.01
+    assert "## CUDA" in render_cuda(cuda)
+
+
+def _decouple_on_worker(frame):
+    import os
+
+    import ipc_taichi
+
+    return os.environ["CUDA_VISIBLE_DEVICES"], ipc_taichi.decouple(frame, arch="cuda")
+
+
+def test_one_worker_per_gpu():
+    """Every GPU of this machine gets one worker that decouples on it."""
+    distributed = pytest.importorskip("distributed")  # not in every GPU image
+    Client = distributed.Client
+
+    from ipc_taichi.gpus import gpu_cluster, visible_gpus
+
+    gpus = visible_gpus()
+    rng = np.random.default_rng(7)
+    frame = couple_reference(rng.uniform(0, 60000, (96, 80)))
+    want = ipc_taichi.decouple(frame, arch="cuda", precision="f64")
+    with gpu_cluster(gpus, use_dask_cuda=False) as cluster, Client(cluster) as client:
+        workers = list(client.scheduler_info()["workers"])
+        futures = [client.submit(_decouple_on_worker, frame, workers=[w], pure=False)
+                   for w in workers]
+        results = client.gather(futures)
+    assert sorted(g for g, _ in results) == sorted(gpus)
+    for _, got in results:
+        assert np.abs(got - want).max() <= 1e-12 * want.max()

@@ -2,7 +2,7 @@
 
 import os
 
-from ..bench import KINDS, SIZES, run_benchmark, write_results
+from ..bench import CUDA_SIZE, KINDS, SIZES, STACK_FRAMES, run_benchmark, write_results
 from ..errors import IPCInputError
 
 __all__ = ["add_parser", "run"]
@@ -24,6 +24,12 @@ def add_parser(sub):
     p.add_argument("--configs", default=None,
                    help="comma-separated subset of numpy,numpy-reference,taichi-cpu-f64,"
                         "taichi-cpu-f32,taichi-cuda-f64,taichi-cuda-f32")
+    p.add_argument("--cuda-size", type=int, default=CUDA_SIZE,
+                   help=f"frame side of the CUDA section (device-resident, host in/out, stack, "
+                        f"CuPy peer, floor; default {CUDA_SIZE}; 0 skips it; skipped without "
+                        "a GPU)")
+    p.add_argument("--stack", type=int, default=STACK_FRAMES,
+                   help=f"frames in the CUDA stack row (default {STACK_FRAMES})")
     p.add_argument("--output", default="bench", help="directory for results (default: bench)")
     p.set_defaults(run=run)
 
@@ -37,11 +43,14 @@ def run(args):
     bad = [k for k in kinds if k not in KINDS]
     if bad or not sizes or min(sizes) < 8 or args.repeats < 1:
         raise IPCInputError(f"bench: need sizes >= 8, kinds in {KINDS}, repeats >= 1")
+    if args.cuda_size < 0 or args.stack < 1:
+        raise IPCInputError("bench: need --cuda-size >= 0 and --stack >= 1")
     configs = args.configs.split(",") if args.configs else None
     print(f"ipc-taichi bench: sizes {sizes}, frames {kinds}, {args.repeats} repeats",
           flush=True)
     results = run_benchmark(sizes, kinds, args.repeats, configs,
-                            progress=lambda s: print(s, flush=True))
+                            progress=lambda s: print(s, flush=True),
+                            cuda_size=args.cuda_size, stack=args.stack)
     for note in results["notes"]:
         print("note:", note)
     write_results(results, args.output)

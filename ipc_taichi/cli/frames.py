@@ -92,6 +92,10 @@ def add_parsers(sub):
                            help="added to each input's name in OUTDIR (default _decoupled)")
             m.add_argument("--scheduler", default=None, metavar="ADDRESS",
                            help="Dask scheduler to run on (default: a local cluster)")
+            m.add_argument("--gpus", default=None, metavar="all|ID,ID",
+                           help="run on a local cluster of one single-threaded worker per GPU, "
+                                "each seeing only its own (CUDA_VISIBLE_DEVICES): 'all' or a "
+                                "list of GPU ids; see docs/performance.md for clusters")
             m.add_argument("--workers", type=int, default=None,
                            help="worker processes of the local cluster, >= 1 (default: "
                                 "min(files, CPU cores))")
@@ -236,7 +240,10 @@ def _run_many(pairs, args, model):
             from ..cluster import close_client, decouple_files, local_client
 
             workers = args.workers or min(len(pairs), os.cpu_count() or 1)
-            client = local_client(args.scheduler, workers)
+            gpus = None if args.gpus is None else (
+                [] if args.gpus.strip() == "all" else
+                [g.strip() for g in args.gpus.split(",") if g.strip()])
+            client = local_client(args.scheduler, workers, gpus=gpus)
             try:
                 results = decouple_files(pairs, options, client, progress=report)
             finally:

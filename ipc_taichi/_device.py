@@ -1,0 +1,358 @@
+"""Where arrays live: array kinds, DLPack conversion, device pointers, host pinning.
+
+:func:`ipc_taichi.couple` and :func:`ipc_taichi.decouple` return the kind of
+array they were given, on the device it was on:
+
+``numpy``
+    NumPy arrays and anything :func:`numpy.asarray` reads (lists, memmaps).
+    On CUDA the frame is copied to the GPU once and the result copied back
+    once, both through the CUDA driver (:class:`CudaDriver`), from host
+    memory that is page-locked for the duration of the call
+    (:func:`pinned_for_call`) so that the copies run at DMA speed.
+``torch``
+    PyTorch tensors. Taichi takes a tensor as a kernel argument without a copy
+    (on the CPU and on CUDA), so the result is computed into a new tensor on the
+    tensor's device and nothing crosses the PCIe bus.
+``cupy``, ``jax``, ``dlpack``
+    CuPy and JAX arrays, and any other object with ``__dlpack__``: wrapped as a
+    PyTorch tensor through DLPack (no copy), computed as above, and handed
+    back through DLPack as the input's kind. PyTorch is then required; without
+    it a one-line :class:`~ipc_taichi.errors.IPCInputError` says what to install.
+
+Nothing here imports PyTorch, CuPy or JAX unless such an array is given.
+"""
+
+import ctypes
+import sys
+import threading
+import weakref
+
+import numpy as np
+
+from .errors import IPCInputError
+
+__all__ = ["kind_of", "to_torch", "from_torch", "torch_dtype", "check_torch_device",
+           "ndarray_pointer", "CudaDriver", "cuda_driver", "pinned_for_call", "pinned_empty",
+           "PIN_MIN_BYTES", "DEVICE_KINDS"]
+
+DEVICE_KINDS = ("torch", "cupy", "jax", "dlpack")
+
+PIN_MIN_BYTES = 4 << 20
+"""Host arrays at least this large are page-locked for the duration of a CUDA
+call; smaller ones are copied from pageable memory (locking costs more than it
+saves on a few MiB)."""
+
+_INSTALL = {
+    "cupy": "CuPy arrays reach Taichi through PyTorch (DLPack): pip install torch "
+            "(a CUDA build matching your CuPy)",
+    "jax": "JAX arrays reach Taichi through PyTorch (DLPack): pip install torch "
+           "(a CUDA build matching your jaxlib)",
+    "dlpack": "DLPack arrays reach Taichi through PyTorch: pip install torch",
+}
+
+
+def kind_of(data):
+    """The kind of array ``data`` is: ``numpy``, ``torch``, ``cupy``, ``jax``
+    or ``dlpack`` (see the module docstring). Decided from the type's module,
+    so no optional package is imported."""
+    if isinstance(data, np.ndarray):
+        return "numpy"
+    root = type(data).__module__.split(".", 1)[0]
+    if root == "torch":
+        return "torch"
+    if root in ("cupy", "cupyx"):
+        return "cupy"
+    if root in ("jax", "jaxlib"):
+        return "jax"
+    if hasattr(data, "__dlpack__"):
+        return "dlpack"
+    return "numpy"
+
+
+def _torch(kind):
+    try:
+        import torch
+    except ImportError:
+        raise IPCInputError(f"ipc_taichi: {_INSTALL[kind]}") from None
+    return torch
+
+
+def to_torch(data, kind):
+    """``data`` (of ``kind``) as a PyTorch tensor sharing its memory."""
+    if kind == "torch":
+        return data
+    torch = _torch(kind)
+    try:
+        return torch.from_dlpack(data)
+    except Exception as exc:  # the producer refused (e.g. an unsupported dtype)
+        raise IPCInputError(f"{kind} array: DLPack hand-over to PyTorch failed ({exc})") \
+            from None
+
+
+def from_torch(tensor, kind, like):
+    """``tensor`` handed back as the kind of ``like`` (no copy)."""
+    if kind == "torch":
+        return tensor
+    if kind == "cupy":
+        import cupy
+
+        return cupy.from_dlpack(tensor)
+    if kind == "jax":
+        import jax.dlpack
+
+        return jax.dlpack.from_dlpack(tensor)
+    module = sys.modules.get(type(like).__module__.split(".", 1)[0])
+    back = getattr(module, "from_dlpack", None)
+    return back(tensor) if back is not None else tensor
+
+
+def torch_dtype(dtype):
+    """The PyTorch dtype of a NumPy float dtype."""
+    import torch
+
+    return {np.dtype(np.float64): torch.float64, np.dtype(np.float32): torch.float32}[
+        np.dtype(dtype)]
+
+
+def check_torch_device(tensor, arch, what):
+    """Refuse a tensor that Taichi cannot reach where it runs: a GPU tensor
+    while Taichi runs on the CPU, a host tensor while it runs on CUDA (which
+    would silently cross the bus twice per kernel), or a GPU other than the
+    first visible one (the one Taichi uses)."""
+    dev = tensor.device
+    if arch == "cpu" and dev.type != "cpu":
+        raise IPCInputError(f"{what}: the array is on {dev} but Taichi runs on the CPU "
+                            "(arch='cpu'); use arch='cuda' or move the array to the host")
+    if arch == "cuda":
+        if dev.type != "cuda":
+            raise IPCInputError(f"{what}: the array is on {dev} but Taichi runs on CUDA; pass "
+                                "a CUDA array, or a NumPy array for a host round trip")
+        if (dev.index or 0) != 0:
+            raise IPCInputError(f"{what}: the array is on {dev}; Taichi uses the first visible "
+                                "GPU (cuda:0): select the GPU with CUDA_VISIBLE_DEVICES "
+                                "(see ipc_taichi.gpus)")
+
+
+def ndarray_pointer(nd):
+    """The address of a Taichi ndarray's data (device memory on CUDA, host
+    memory on the CPU): Taichi's LLVM backends allocate ndarrays as plain
+    memory, and its program object reports the address."""
+    import taichi as ti
+
+    return int(ti.lang.impl.get_runtime().prog.get_ndarray_data_ptr_as_int(nd.arr))
+
+
+# --------------------------------------------------------------------------- CUDA driver
+
+CUDA_SUCCESS = 0
+CUDA_ERROR_HOST_MEMORY_ALREADY_REGISTERED = 712
+CUDA_ERROR_HOST_MEMORY_NOT_REGISTERED = 713
+CU_MEMHOSTREGISTER_PORTABLE = 1
+
+
+class CudaDriver:
+    """The few CUDA driver calls the engine needs, through ctypes (``libcuda.so.1``
+    ships with the NVIDIA driver, so this adds no dependency).
+
+    Every call runs in the primary context of device 0, the context Taichi's
+    CUDA backend uses, and copies are issued on the legacy default stream that
+    Taichi launches its kernels on, so they are ordered with the kernels.
+
+    Parameters
+    ----------
+    lib : ctypes library, optional
+        The driver (default: ``libcuda.so.1``); tests pass a stand-in.
+    """
+
+    def __init__(self, lib=None):
+        self.lib = lib if lib is not None else ctypes.CDLL("libcuda.so.1")
+        self._ctx = None
+
+    def _check(self, code, what):
+        if code != CUDA_SUCCESS:
+            name = ctypes.c_char_p()
+            try:
+                self.lib.cuGetErrorName(code, ctypes.byref(name))
+                label = (name.value or b"").decode()
+            except Exception:  # a stand-in driver without error names
+                label = ""
+            raise RuntimeError(f"CUDA driver: {what} failed with error {code} {label}".strip())
+
+    def _context(self):
+        if self._ctx is None:
+            self._check(self.lib.cuInit(0), "cuInit")
+            dev = ctypes.c_int()
+            self._check(self.lib.cuDeviceGet(ctypes.byref(dev), 0), "cuDeviceGet")
+            ctx = ctypes.c_void_p()
+            self._check(self.lib.cuDevicePrimaryCtxRetain(ctypes.byref(ctx), dev),
+                        "cuDevicePrimaryCtxRetain")
+            self._ctx = ctx
+        return self._ctx
+
+    def _in_context(self, fn, *args):
+        self._check(self.lib.cuCtxPushCurrent_v2(self._context()), "cuCtxPushCurrent")
+        try:
+            return fn(*args)
+        finally:
+            self.lib.cuCtxPopCurrent_v2(ctypes.byref(ctypes.c_void_p()))
+
+    def register(self, address, nbytes):
+        """Page-lock host memory. Returns True if this call locked it, False if
+        it was already locked (by the caller or an earlier registration)."""
+        code = self._in_context(self.lib.cuMemHostRegister_v2, ctypes.c_void_p(address),
+                                ctypes.c_size_t(nbytes),
+                                ctypes.c_uint(CU_MEMHOSTREGISTER_PORTABLE))
+        if code == CUDA_ERROR_HOST_MEMORY_ALREADY_REGISTERED:
+            return False
+        self._check(code, "cuMemHostRegister")
+        return True
+
+    def unregister(self, address):
+        code = self._in_context(self.lib.cuMemHostUnregister, ctypes.c_void_p(address))
+        if code != CUDA_ERROR_HOST_MEMORY_NOT_REGISTERED:
+            self._check(code, "cuMemHostUnregister")
+
+    def upload(self, device_address, host_address, nbytes):
+        """Host -> device copy (synchronous with respect to the host memory)."""
+        self._check(self._in_context(self.lib.cuMemcpyHtoD_v2, ctypes.c_uint64(device_address),
+                                     ctypes.c_void_p(host_address), ctypes.c_size_t(nbytes)),
+                    "cuMemcpyHtoD")
+
+    def download(self, host_address, device_address, nbytes):
+        """Device -> host copy; returns when the data is on the host."""
+        self._check(self._in_context(self.lib.cuMemcpyDtoH_v2, ctypes.c_void_p(host_address),
+                                     ctypes.c_uint64(device_address), ctypes.c_size_t(nbytes)),
+                    "cuMemcpyDtoH")
+
+    def device_name(self):
+        """The name of device 0."""
+        self._context()
+        name = ctypes.create_string_buffer(256)
+        self._check(self.lib.cuDeviceGetName(name, 256, 0), "cuDeviceGetName")
+        return name.value.decode(errors="replace")
+
+    def memory(self):
+        """``(free, total)`` device memory in bytes."""
+        free, total = ctypes.c_size_t(), ctypes.c_size_t()
+        self._check(self._in_context(self.lib.cuMemGetInfo_v2, ctypes.byref(free),
+                                     ctypes.byref(total)), "cuMemGetInfo")
+        return free.value, total.value
+
+
+_driver = None
+_driver_lock = threading.Lock()
+
+
+def cuda_driver():
+    """The process's :class:`CudaDriver` (loaded on first use)."""
+    global _driver
+    with _driver_lock:
+        if _driver is None:
+            _driver = CudaDriver()
+        return _driver
+
+
+class HostCopies:
+    """Copies between host NumPy arrays and Taichi ndarrays by address.
+
+    On CUDA through :class:`CudaDriver`; on the CPU (where a Taichi ndarray is
+    host memory) by ``memmove``, which is how the tests run the GPU engine's
+    code path without a GPU.
+    """
+
+    def __init__(self, arch, driver=None):
+        self.arch = arch
+        self.driver = driver if driver is not None or arch != "cuda" else cuda_driver()
+
+    def upload(self, nd, host):
+        host = _contiguous(host)
+        if self.arch == "cuda":
+            self.driver.upload(ndarray_pointer(nd), host.ctypes.data, host.nbytes)
+        else:
+            ctypes.memmove(ndarray_pointer(nd), host.ctypes.data, host.nbytes)
+
+    def download(self, host, nd):
+        if not (host.flags.c_contiguous and host.flags.writeable):
+            raise ValueError("download target must be a writeable C-contiguous array")
+        if self.arch == "cuda":
+            self.driver.download(host.ctypes.data, ndarray_pointer(nd), host.nbytes)
+        else:
+            ctypes.memmove(host.ctypes.data, ndarray_pointer(nd), host.nbytes)
+
+
+def _contiguous(host):
+    if not host.flags.c_contiguous:
+        raise ValueError("upload source must be C-contiguous")
+    return host
+
+
+def _owner(array):
+    """The array that owns ``array``'s memory (following views)."""
+    while isinstance(array.base, np.ndarray):
+        array = array.base
+    return array
+
+
+class pinned_for_call:
+    """Context manager: page-lock host arrays (at least :data:`PIN_MIN_BYTES`)
+    for the duration of a CUDA call, so that the engine's copies run at DMA
+    speed; memory that is already locked (e.g. from :func:`pinned_empty`) is
+    left as it is. A no-op off CUDA or with ``enabled=False``.
+
+    Each array's whole buffer (from the start of its owner's memory) is locked:
+    CUDA locks whole pages, and two views of one buffer must not lock it twice.
+    """
+
+    def __init__(self, arrays, arch, enabled=True, driver=None):
+        self.arrays = [a for a in arrays if a is not None]
+        self.active = enabled and arch == "cuda"
+        self.driver = driver
+        self.locked = []
+
+    def __enter__(self):
+        if not self.active:
+            return self
+        driver = self.driver or cuda_driver()
+        seen = set()
+        for array in self.arrays:
+            owner = _owner(array)
+            address, nbytes = owner.ctypes.data, owner.nbytes
+            if nbytes < PIN_MIN_BYTES or address in seen:
+                continue
+            seen.add(address)
+            try:
+                if driver.register(address, nbytes):
+                    self.locked.append(address)
+            except RuntimeError:
+                # e.g. read-only or file-backed memory the driver will not lock:
+                # the copies of this array then run from pageable memory
+                continue
+        self.driver = driver
+        self.arrays = []  # keep addresses only, not the arrays alive
+        return self
+
+    def __exit__(self, *exc):
+        while self.locked:
+            self.driver.unregister(self.locked.pop())
+        return False
+
+
+def pinned_empty(shape, dtype=np.float64, arch=None, driver=None):
+    """An uninitialised NumPy array in page-locked host memory (on CUDA), for
+    frames that are decoupled again and again (pass it as the input, or as
+    ``out=``): the engine's copies then need no locking of their own. The
+    memory is unlocked when the array is garbage collected. Off CUDA it is a
+    plain :func:`numpy.empty`.
+    """
+    from . import runtime
+
+    if arch is None:
+        info = runtime.current()
+        arch = info.arch if info is not None else "cpu"
+    array = np.empty(shape, dtype=dtype)
+    if arch == "cuda" and array.nbytes:
+        driver = driver or cuda_driver()
+        address = array.ctypes.data
+        if driver.register(address, array.nbytes):
+            weakref.finalize(array, driver.unregister, address)
+    return array
