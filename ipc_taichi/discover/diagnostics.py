@@ -20,13 +20,22 @@ stacked window
 residual vs signal
     The mean residual of pixels binned by their expected signal: dark
     current shows at the low end, non-linearity at the high end.
+chi-square vs signal
+    The mean squared residual in the same bins: a variance problem (read
+    noise, a response map) shows here and not in the mean residual.
+residuals by probe type
+    Mean residual and chi-square at the centres and rings of hot pixels and
+    stars, inside flat patches and along their edges (:func:`probe_masks`).
 """
+
+import math
 
 import numpy as np
 from scipy import ndimage
 
-__all__ = ["BORDER", "SIGNAL_BINS", "valid_mask", "fill_scene", "residual", "gap",
-           "find_probes", "stacked_windows", "residual_vs_signal"]
+__all__ = ["BORDER", "SIGNAL_BINS", "PROBE_TYPES", "valid_mask", "fill_scene", "residual", "gap",
+           "find_probes", "stacked_windows", "residual_vs_signal", "probe_masks",
+           "residuals_by_probe", "dipoles", "after_images", "pair_correlation"]
 
 BORDER = 3
 SIGNAL_BINS = (1000.0, 4000.0, 12000.0, 30000.0, 1e9)  # e-: peak-signal bins of the stacks
@@ -153,3 +162,142 @@ def residual_vs_signal(residuals, means, edges=None):
         np.add.at(n, k[inside], 1)
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.sqrt(edges[:-1] * edges[1:]), s1 / n, s2 / n, n
+
+
+PROBE_TYPES = ("hot_pixels", "stars", "flat_patches", "flat_edges")
+
+
+def probe_masks(scene, valid, probes, contrast=1000.0):
+    """Pixels of each probe type of one frame: ``{type: (centre, ring)}`` boolean masks.
+
+    hot_pixels
+        probes (:func:`find_probes`) holding more than 70 % of the charge
+        above background in their 3x3 window; ``centre`` the peak, ``ring``
+        its 4 nearest neighbours.
+    stars
+        the other probes (extended sources), same centre and ring.
+    flat_patches
+        pixels ``contrast`` e- above the frame's median whose 3x3
+        neighbourhood varies by less than 2 %: the interior of flat areas
+        (``ring`` is empty).
+    flat_edges
+        pixels with a neighbour differing by more than ``contrast`` e- and
+        30 %, away from probes: the edges of flat areas, inside (``centre``)
+        and outside (``ring``).
+    """
+    shape = scene.shape
+    out = {}
+    near_probe = np.zeros(shape, bool)
+    hot = [np.zeros(shape, bool), np.zeros(shape, bool)]
+    star = [np.zeros(shape, bool), np.zeros(shape, bool)]
+    background = ndimage.median_filter(scene, size=11, mode="nearest")
+    above = scene - background
+    for y, x, _ in probes:
+        y, x = int(y), int(x)
+        win = above[y - 1:y + 2, x - 1:x + 2]
+        frac = above[y, x] / max(float(np.clip(win, 0, None).sum()), 1e-9)
+        target = hot if frac > 0.7 else star
+        target[0][y, x] = True
+        for dy, dx in ((0, 1), (0, -1), (1, 0), (-1, 0)):
+            target[1][y + dy, x + dx] = True
+        near_probe[max(y - 3, 0):y + 4, max(x - 3, 0):x + 4] = True
+    out["hot_pixels"] = (hot[0] & valid, hot[1] & valid)
+    out["stars"] = (star[0] & valid, star[1] & valid)
+    hi = ndimage.maximum_filter(scene, size=3, mode="nearest")
+    lo = ndimage.minimum_filter(scene, size=3, mode="nearest")
+    level = float(np.median(scene))
+    interior = (scene > level + contrast) & (hi - lo < 0.02 * scene) & ~near_probe
+    out["flat_patches"] = (interior & valid, np.zeros(shape, bool))
+    step = (hi - lo > contrast) & (hi - lo > 0.3 * hi) & ~near_probe & ~interior
+    inside = step & (scene > 0.5 * (hi + lo))
+    out["flat_edges"] = (inside & valid, step & ~inside & valid)
+    return out
+
+
+def residuals_by_probe(residuals, masks):
+    """Mean residual and mean squared residual by probe type, centre and ring.
+
+    ``masks``: one :func:`probe_masks` result per frame. Returns
+    ``{type: {"centre": {...}, "ring": {...}}}`` with ``n``, ``mean``
+    (noise units), ``z`` (the mean over its standard error) and ``chi2``
+    (mean squared residual).
+    """
+    out = {}
+    for kind in PROBE_TYPES:
+        parts = {}
+        for i, where in enumerate(("centre", "ring")):
+            vals = np.concatenate([r[m[kind][i]] for r, m in zip(residuals, masks)]
+                                  or [np.zeros(0)])
+            vals = vals[np.isfinite(vals)]
+            n = int(vals.size)
+            mean = float(vals.mean()) if n else float("nan")
+            parts[where] = {"n": n, "mean": mean,
+                            "z": mean * math.sqrt(n) if n else float("nan"),
+                            "chi2": float(np.mean(vals ** 2)) if n else float("nan")}
+        out[kind] = parts
+    return out
+
+
+def dipoles(residuals, probes):
+    """Mean antisymmetric residual around probes: ``{"x": (mean, z), "y": (mean, z)}``.
+
+    ``(r[y, x+1] - r[y, x-1]) / 2`` (and along y): a shift between SCENE and
+    MEASURED leaves dipoles of one sign around every source.
+    """
+    out = {}
+    for axis, (dy, dx) in (("x", (0, 1)), ("y", (1, 0))):
+        vals = []
+        for r, rows in zip(residuals, probes):
+            for y, x, _ in rows:
+                y, x = int(y), int(x)
+                vals.append(0.5 * (r[y + dy, x + dx] - r[y - dy, x - dx]))
+        vals = np.asarray(vals, float)
+        vals = vals[np.isfinite(vals)]
+        if vals.size < 3:
+            out[axis] = (float("nan"), float("nan"))
+            continue
+        m = float(vals.mean())
+        out[axis] = (m, m / (vals.std(ddof=1) / math.sqrt(vals.size) + 1e-12))
+    return out
+
+
+def after_images(residual_blocks, scene_blocks, valid_blocks, bright=5000.0):
+    """Mean residual where the *previous* pair's scene was bright, against the
+    other faint pixels of the same pair.
+
+    Returns ``(difference of means, z, n)``: an after-image of earlier
+    exposures (persistence) shows as a positive difference. Only pixels faint
+    in the current scene, and not next to anything bright now, are compared.
+    """
+    inside, outside = [], []
+    for res, scenes, valid in zip(residual_blocks, scene_blocks, valid_blocks):
+        for k in range(1, len(res)):
+            prev = scenes[k - 1] - np.median(scenes[k - 1])
+            now = scenes[k] - np.median(scenes[k])
+            busy = ndimage.binary_dilation(now > 0.02 * bright, structure=np.ones((3, 3), bool))
+            faint = ~busy & valid[k] & np.isfinite(res[k])
+            inside.append(res[k][faint & (prev > bright)])
+            outside.append(res[k][faint & (prev < 0.02 * bright)])
+    a = np.concatenate(inside) if inside else np.zeros(0)
+    b = np.concatenate(outside) if outside else np.zeros(0)
+    if a.size < 3 or b.size < 3:
+        return float("nan"), float("nan"), int(a.size)
+    diff = float(a.mean() - b.mean())
+    se = math.sqrt(a.var(ddof=1) / a.size + b.var(ddof=1) / b.size)
+    return diff, diff / (se + 1e-12), int(a.size)
+
+
+def pair_correlation(residual_blocks):
+    """Mean product of the residuals of one pixel in two different pairs of a file,
+    and its z: a fixed per-pixel pattern (a response map) repeats across pairs."""
+    vals = []
+    for res in residual_blocks:
+        for k in range(len(res)):
+            for j in range(k + 1, len(res)):
+                p = res[k] * res[j]
+                vals.append(p[np.isfinite(p)])
+    vals = np.concatenate(vals) if vals else np.zeros(0)
+    if vals.size < 3:
+        return float("nan"), float("nan")
+    m = float(vals.mean())
+    return m, m / (vals.std(ddof=1) / math.sqrt(vals.size) + 1e-12)

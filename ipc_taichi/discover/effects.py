@@ -1,45 +1,60 @@
 """The vocabulary of detector effects the discrepancy workflow can add.
 
-Each effect has a name (the names of ``DISCOVERY_FORMAT.md``), a stage of
-the detector chain (see :mod:`ipc_taichi.discover.model` for the order and
+Each effect has a name (the names of ``docs/discovery_format.md``), a stage
+of the detector chain (see :mod:`ipc_taichi.discover.model` for the order and
 why), and a few parameters, each with the value that means "off", bounds and
-a typical scale. The physics of the effects that are not IPC lives here as
-plain NumPy functions; IPC itself is the core engine (:func:`ipc_taichi.couple`)
-with a law and a :class:`~ipc_taichi.Geometry`.
+a typical scale. Every parameter enters the model smoothly through its "off"
+value with a non-zero first derivative there (no form is flat at zero), and
+the bounds allow the sign that contradicts the effect's meaning wherever a
+fit might need it: a fit that wants the wrong sign must be able to say so
+(:func:`contradiction`), instead of sticking at the bound and looking like
+"no effect". The physics of the effects that are not IPC lives here as
+plain NumPy functions; IPC itself is the core engine (:func:`ipc_taichi.couple`).
 
 Parameters (all reported under these names)
 -------------------------------------------
-``diagonal_ipc``
-    ``alpha_diag``: coupling fraction to each diagonal neighbour at zero
-    signal (absolute, e.g. 0.0015). It is a geometry weight
-    ``alpha_diag / alpha(0, 0)`` multiplying the law, so it follows the
-    law's signal dependence.
+``misregistration``
+    ``shift_y_px``, ``shift_x_px``: MEASURED is SCENE displaced by this many
+    pixels (a source at ``x0`` in SCENE is seen at ``x0 + shift_x_px``).
+``reciprocity_failure``
+    ``alpha_per_decade``: the collected photo-charge is
+    ``C (C / 1 e-)^(alpha / ln 10)``: the response rises by ``alpha`` (a
+    fraction) per decade of signal (count rate at a fixed exposure time).
+``charge_diffusion``
+    ``sigma_px``: RMS (pixels) of the lateral spread of carriers generated
+    uniformly across the pixel area, integrated over the collecting pixels.
+``dark_current``
+    ``dark_e``: electrons of collected charge added to every pixel.
+``brighter_fatter``
+    ``deflection_x_at_50ke``, ``deflection_y_at_50ke``: the fraction of newly
+    arriving charge that a pixel already holding 50 ke- more than its empty
+    neighbours sends across its boundaries along x (to its two row
+    neighbours together) and along y (to its two column neighbours);
+    ``upwind`` (0-1): which arrivals a moved boundary hands over, from the
+    mean of the two pixels' (0: a flow driven by the difference of squared
+    charges) to the shrinking pixel's own (1: the boundary-shift picture);
+    ``reach``: how much the charge of the 4 nearest neighbours of the two
+    pixels adds to the field that moves their boundary (0: only the two
+    pixels' own charge; a long edge then pushes as hard as a single pixel).
+``flat_field``
+    ``response_variance``: variance of the per-pixel response (gain or QE)
+    about 1; reported also as ``response_rms``.
+``diagonal_ipc``, ``second_neighbor_ipc``
+    ``alpha_diag``, ``alpha_second``: coupling fraction per neighbour at zero
+    signal (a geometry weight ``alpha / alpha(0, 0)`` on the law).
 ``anisotropic_ipc``
     ``weight_horizontal``, ``weight_vertical``: multipliers of alpha along a
-    row and along a column (1, 1 = the starting model); reported with
-    ``anisotropy = (h - v) / ((h + v) / 2)``, a fraction.
-``second_neighbor_ipc``
-    ``alpha_second``: coupling fraction to each pixel two steps away along a
-    row or column, at zero signal (a geometry weight like ``alpha_diag``).
+    row and along a column; reported with ``anisotropy = (h - v)/((h + v)/2)``.
 ``signal_dependent_ipc``
     ``amp_diff``, ``amp_level``, ``alpha_floor``: the constant starting law
-    becomes ``amp_diff exp(-|S-N|/20000)
-    + amp_level exp(-sqrt(S^2+N^2)/(20000 sqrt2)) + alpha_floor``
-    (the family of Donlon et al. 2018; fractions). Offered only when the
-    starting law is constant.
+    becomes the donlon2018 family with its scales (``ipc_taichi.laws``) and
+    these amplitudes. Offered only when the starting law is constant.
 ``classical_nonlinearity``
     ``deficit_at_50ke``, ``cubic_term``: ``f(x) = x (1 - (d - b) u - b u^2)``
-    with ``u = x / 50000 e-``: the response is ``d`` (a fraction) below
-    linear at 50 ke-; ``b`` lets the curve bend like a cubic polynomial.
-``brighter_fatter``
-    ``deflection_at_50ke``: fraction of newly arriving charge that a pixel
-    already holding 50 ke- pushes into its 4 nearest neighbours (in total);
-    proportional to the charge already collected.
-``charge_diffusion``
-    ``sigma_px``: RMS of a Gaussian blur of the arriving charge (pixels),
-    integrated over pixels, applied before shot noise.
-``dark_current``
-    ``dark_e``: uniform charge added to every pixel (electrons per frame).
+    with ``u = x / 50000 e-``, after IPC.
+``excess_read_noise``
+    ``excess_variance_e2``: read-noise variance above ``READNOIS^2``
+    (electrons squared); reported also as ``readnoise_e``.
 """
 
 import math
@@ -48,36 +63,43 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import ndtr
 
-__all__ = ["Param", "Effect", "EFFECTS", "EFFECT_NAMES", "SEPARATION", "diffuse",
-           "brighter_fatter", "nonlinearity", "derived_params", "NL_REFERENCE",
-           "LAW_SCALE_DIFF", "LAW_SCALE_LEVEL"]
+from ..laws import donlon2018
+
+__all__ = ["Param", "Effect", "EFFECTS", "EFFECT_NAMES", "SEPARATION", "DEGENERATE",
+           "diffuse", "diffusion_weights", "brighter_fatter", "nonlinearity", "reciprocity",
+           "shift_scene", "derived_params", "contradiction", "NL_REFERENCE", "BF_REFERENCE",
+           "RECIPROCITY_REFERENCE", "LAW_SCALE_DIFF", "LAW_SCALE_LEVEL"]
 
 NL_REFERENCE = 50000.0  # e-: the signal at which the non-linearity deficit is quoted
 BF_REFERENCE = 50000.0  # e-: likewise for the brighter-fatter deflection
-BF_STEPS = 8            # collection is integrated in this many equal slices of the exposure
-LAW_SCALE_DIFF = 20000.0                   # the scales of the donlon2018 family
-LAW_SCALE_LEVEL = 20000.0 * math.sqrt(2.0)
+RECIPROCITY_REFERENCE = 1.0  # e-: response 1 at this signal (GalSim's base-flux convention)
+BF_STEPS = 8  # collection is integrated in this many equal slices of the exposure
+# the signal-dependent family's scales: the paper's, from the one place they are written
+LAW_SCALE_DIFF = donlon2018().scale_diff
+LAW_SCALE_LEVEL = donlon2018().scale_level
 
 
 @dataclass(frozen=True)
 class Param:
-    """One fitted parameter: its "off" value, bounds, scale and starting seeds."""
+    """One fitted parameter: its "off" value, bounds and scale."""
 
     name: str
     off: float
     lower: float
     upper: float
     scale: float
-    seeds: tuple = ()  # extra starting points for parameters with a flat start (sigma_px)
+    scan: bool = True  # try a coarse scan for the start (shape parameters need none)
 
 
 @dataclass(frozen=True)
 class Effect:
     """A named detector effect and where it acts.
 
-    ``stage`` is ``"collection"`` (changes the expected collected charge,
-    before shot noise), ``"coupling"`` (changes the IPC law or geometry) or
-    ``"readout"`` (acts on the node signal after coupling).
+    ``stage`` is ``"scene"`` (a data problem, before the detector),
+    ``"collection"`` (changes the expected collected charge, before shot
+    noise), ``"coupling"`` (the IPC law or geometry), ``"readout"`` (acts on
+    the node signal after coupling) or ``"variance"`` (changes only the
+    noise: its fit maximises the Gaussian likelihood with the mean fixed).
     """
 
     name: str
@@ -90,6 +112,9 @@ class Effect:
 
 
 EFFECTS = {e.name: e for e in (
+    Effect("misregistration", "scene",
+           (Param("shift_y_px", 0.0, -1.5, 1.5, 0.01), Param("shift_x_px", 0.0, -1.5, 1.5, 0.01)),
+           "SCENE and MEASURED are offset by a sub-pixel shift"),
     Effect("diagonal_ipc", "coupling",
            (Param("alpha_diag", 0.0, 0.0, 0.02, 1e-3),),
            "coupling to the 4 diagonal neighbours"),
@@ -107,20 +132,47 @@ EFFECTS = {e.name: e for e in (
            "the coupling varies with signal"),
     Effect("classical_nonlinearity", "readout",
            (Param("deficit_at_50ke", 0.0, -0.3, 0.5, 0.01),
-            Param("cubic_term", 0.0, -0.5, 0.5, 0.01)),
+            Param("cubic_term", 0.0, -0.5, 0.5, 0.01, scan=False)),
            "the pixel's response falls below linear as its signal grows"),
+    Effect("reciprocity_failure", "collection",
+           (Param("alpha_per_decade", 0.0, -0.1, 0.2, 0.002),),
+           "the response rises above linear as the signal (count rate) grows"),
     Effect("brighter_fatter", "collection",
-           (Param("deflection_at_50ke", 0.0, 0.0, 0.2, 0.005),),
+           (Param("deflection_x_at_50ke", 0.0, -0.2, 0.3, 0.003),
+            Param("deflection_y_at_50ke", 0.0, -0.2, 0.3, 0.003),
+            # upwind and reach do nothing at zero deflection: their "off" values
+            # are the starting guesses of the field's standard picture
+            Param("upwind", 1.0, 0.0, 1.0, 0.05, scan=False),
+            Param("reach", 0.5, -0.5, 1.0, 0.05, scan=False)),
            "charge already collected pushes new charge into neighbours"),
     Effect("charge_diffusion", "collection",
-           (Param("sigma_px", 0.0, 0.0, 1.5, 0.05, seeds=(0.15, 0.3, 0.5)),),
+           (Param("sigma_px", 0.0, 0.0, 1.5, 0.02),),
            "carriers spread to neighbours before collection (blur before shot noise)"),
     Effect("dark_current", "collection",
            (Param("dark_e", 0.0, -1e4, 1e6, 1.0),),
-           "a spatially uniform additive signal"),
+           "a spatially uniform additive collected charge"),
+    Effect("flat_field", "variance",
+           (Param("response_variance", 0.0, 0.0, 0.01, 1e-5),),
+           "pixel-to-pixel response variation, fixed per pixel across the pairs"),
+    Effect("excess_read_noise", "variance",
+           (Param("excess_variance_e2", 0.0, -1e4, 1e5, 1.0),),
+           "the read noise is larger than READNOIS says"),
 )}
 
 EFFECT_NAMES = tuple(EFFECTS)
+
+# Pairs whose signatures overlap: when one of them is a candidate and the
+# other is already in the model, the candidate is fitted together with the
+# partner's parameters (a joint refit), so neither is dropped for having been
+# fitted with the other's value frozen.
+DEGENERATE = (
+    frozenset({"charge_diffusion", "brighter_fatter"}),
+    frozenset({"anisotropic_ipc", "diagonal_ipc"}),
+    frozenset({"charge_diffusion", "diagonal_ipc"}),
+    frozenset({"classical_nonlinearity", "reciprocity_failure"}),
+    frozenset({"brighter_fatter", "classical_nonlinearity"}),
+    frozenset({"flat_field", "excess_read_noise"}),
+)
 
 # What tells near-degenerate effects apart (reported with the alternatives).
 SEPARATION = {
@@ -149,66 +201,143 @@ SEPARATION = {
         "anisotropy changes it by direction at every signal",
     frozenset({"second_neighbor_ipc", "charge_diffusion"}):
         "diffusion feeds the nearest neighbours first; second-neighbour IPC skips them",
+    frozenset({"classical_nonlinearity", "reciprocity_failure"}):
+        "non-linearity lowers the response at high signal, after IPC; reciprocity failure "
+        "raises it, logarithmically, before shot noise",
+    frozenset({"dark_current", "reciprocity_failure"}):
+        "dark current adds the same charge everywhere; reciprocity failure scales with signal",
+    frozenset({"flat_field", "excess_read_noise"}):
+        "a response map adds variance growing as signal squared and repeating pixel by pixel "
+        "across pairs; excess read noise is the same at every signal",
 }
 
 
-def _gaussian_weights(sigma, half):
-    """Pixel-integrated 1-D Gaussian on offsets -half..half, normalised."""
+def contradiction(effect, params):
+    """Why fitted ``params`` contradict the meaning of ``effect`` (``None`` if they do not).
+
+    Such a fit is not reported under the effect's name: a non-linearity that
+    rises above linear is not a non-linearity.
+    """
+    p = params
+    if effect == "classical_nonlinearity" and p["deficit_at_50ke"] <= 0:
+        return (f"the response rises above linear (deficit at 50 ke- "
+                f"{p['deficit_at_50ke']:.4g} <= 0)")
+    if effect == "reciprocity_failure" and p["alpha_per_decade"] <= 0:
+        return f"the response falls with signal (alpha per decade {p['alpha_per_decade']:.4g})"
+    if effect == "brighter_fatter":
+        dx, dy = p["deflection_x_at_50ke"], p["deflection_y_at_50ke"]
+        if dx + dy <= 0 or min(dx, dy) < -0.25 * abs(dx + dy):
+            return (f"collected charge would attract new charge (deflections x {dx:.4g}, "
+                    f"y {dy:.4g})")
+    if effect == "dark_current" and p["dark_e"] <= 0:
+        return f"a negative collected charge ({p['dark_e']:.4g} e-)"
+    if effect == "excess_read_noise" and p["excess_variance_e2"] <= 0:
+        return f"less read noise than READNOIS ({p['excess_variance_e2']:.4g} e-^2)"
+    return None
+
+
+def _big_g(t):
+    """``G(t) = t Phi(t) + phi(t)``, the integral of the normal CDF ``Phi``."""
+    return t * ndtr(t) + np.exp(-0.5 * t * t) / math.sqrt(2.0 * math.pi)
+
+
+def diffusion_weights(sigma, half):
+    """1-D weights on offsets ``-half..half`` of a Gaussian spread of RMS ``sigma`` of
+    charge generated uniformly across a pixel and integrated over each collecting pixel.
+
+    ``w_k = int_{-1/2}^{1/2} du int_{k-1/2}^{k+1/2} N(x - u; sigma) dx
+    = sigma [G((k+1)/sigma) - 2 G(k/sigma) + G((k-1)/sigma)]``: the pixel box
+    convolved with itself (a triangle) and the Gaussian. The neighbour weight
+    grows as ``sigma / sqrt(2 pi)`` from zero, so a fit can move from 0.
+    """
     k = np.arange(-half, half + 1, dtype=np.float64)
-    if sigma <= 0:
+    if sigma <= 1e-9:
         return (k == 0).astype(np.float64)
-    w = ndtr((k + 0.5) / sigma) - ndtr((k - 0.5) / sigma)
+    s = float(sigma)
+    w = s * (_big_g((k + 1) / s) - 2.0 * _big_g(k / s) + _big_g((k - 1) / s))
+    w = np.clip(w, 0.0, None)
     return w / w.sum()
 
 
 def diffuse(charge, sigma_px):
-    """Blur arriving charge by a pixel-integrated Gaussian of RMS ``sigma_px``.
+    """Spread charge generated across each pixel's area by a Gaussian of RMS ``sigma_px``.
 
-    Separable, normalised (charge conserved inside the frame); the frame is
-    extended by its edge values, as the scene beyond it is unknown.
+    Separable and normalised (charge conserved inside the frame); the frame
+    is extended by its edge values, as the scene beyond it is unknown.
     """
     from scipy.ndimage import convolve1d
 
     sigma = float(sigma_px)
     if sigma <= 0:
         return charge
-    half = max(2, int(math.ceil(4 * sigma)))
-    w = _gaussian_weights(sigma, half)
+    w = diffusion_weights(sigma, max(2, int(math.ceil(4 * sigma)) + 1))
     out = convolve1d(charge, w, axis=-1, mode="nearest")
     return convolve1d(out, w, axis=-2, mode="nearest")
 
 
-def _spread_to_neighbours(out_each):
-    """Charge arriving at each pixel from its 4 nearest neighbours, each of
-    which sends ``out_each`` to every neighbour (none arrives from outside)."""
-    gain = np.zeros_like(out_each)
-    gain[..., 1:, :] += out_each[..., :-1, :]
-    gain[..., :-1, :] += out_each[..., 1:, :]
-    gain[..., :, 1:] += out_each[..., :, :-1]
-    gain[..., :, :-1] += out_each[..., :, 1:]
-    return gain
+def brighter_fatter(charge, deflection_x_at_50ke, deflection_y_at_50ke=None, upwind=0.5,
+                    reach=0.0, steps=BF_STEPS):
+    """Collect ``charge`` with pixel boundaries shifted by the charge already collected.
 
-
-def brighter_fatter(charge, deflection_at_50ke, steps=BF_STEPS):
-    """Collect ``charge`` in ``steps`` equal slices; charge arriving at a pixel
-    that already holds ``Q`` goes, for a fraction ``deflection * Q / 50 ke-``,
-    to its 4 nearest neighbours instead (a quarter each).
-
-    This is the brighter-fatter picture of charge already collected repelling
-    new charge. The midpoint of each slice is used for ``Q`` (second-order in
-    the slice). Flat fields stay flat; total charge is conserved except at the
-    frame edge.
+    The exposure is integrated in ``steps`` equal slices (midpoint rule).
+    The boundary between neighbours ``p`` and ``q`` moves into the fuller
+    pixel in proportion to the difference of their collected charge (the
+    Antilogus et al. 2014 picture, nearest-neighbour terms, with separate
+    strengths along x and y), and the arrivals in the strip it sweeps go to
+    the other pixel. Per slice the flow from ``p`` to ``q`` is
+    ``d (Q_p - Q_q) / 50 ke- x a / (1 + w)``, with ``a`` the arrivals per
+    slice in the swept strip: ``(1 - w) (a_p + a_q) / 2 + w a_up`` where
+    ``a_up`` is the shrinking pixel's (``w`` = ``upwind``); dividing by
+    ``1 + w`` makes a pixel holding 50 ke- among empty neighbours sends ``d`` of its
+    arrivals across its two boundaries in that direction for every ``w``
+    (and loses ``(d_x + d_y) / 2`` of its charge over the exposure). With ``w = 0``
+    and a constant arrival rate the total flow is
+    ``(d / 4)(C_p^2 - C_q^2) / 50 ke-`` (a flow driven by the difference of
+    squared charges); ``w = 1`` is the strict boundary-shift picture, which
+    moves relatively more charge where the neighbour receives little light
+    (hot pixels, the edges of flat patches). The field that moves a
+    boundary comes from more than the two pixels: ``Q`` above is the charge
+    plus ``reach`` times the charge of the 4 nearest neighbours, so a long
+    edge (many charged neighbours) pushes harder than an isolated pixel.
+    Flat fields stay flat; charge is conserved except at the frame edge.
     """
-    d = float(deflection_at_50ke)
-    if d == 0.0:
+    dx = float(deflection_x_at_50ke)
+    dy = dx if deflection_y_at_50ke is None else float(deflection_y_at_50ke)
+    w, r = float(upwind), float(reach)
+    if dx == 0.0 and dy == 0.0:
         return charge
-    arrive = charge / steps
-    q = np.zeros_like(charge)
+    arrive = np.asarray(charge, dtype=np.float64) / steps
+    q = np.zeros_like(arrive)
+    norm = 1.0 / (1.0 + w)
     for _ in range(steps):
-        frac = np.clip(d * (q + 0.5 * arrive) / BF_REFERENCE, -0.5, 0.5) * 0.25
-        out_each = arrive * frac
-        q = q + arrive - 4.0 * out_each + _spread_to_neighbours(out_each)
+        qm = q + 0.5 * arrive
+        if r != 0.0:
+            qm = qm + r * _neighbour_sum(qm)
+        q = q + arrive
+        for axis, d in ((-1, dx), (-2, dy)):
+            if d == 0.0:
+                continue
+            lo = [slice(None)] * arrive.ndim
+            hi = [slice(None)] * arrive.ndim
+            lo[axis], hi[axis] = slice(None, -1), slice(1, None)
+            lo, hi = tuple(lo), tuple(hi)
+            dq = qm[lo] - qm[hi]
+            a_up = np.where(dq > 0, arrive[lo], arrive[hi])
+            swept = (1.0 - w) * 0.5 * (arrive[lo] + arrive[hi]) + w * a_up
+            flow = d * norm * dq / BF_REFERENCE * swept
+            q[lo] -= flow
+            q[hi] += flow
     return q
+
+
+def _neighbour_sum(q):
+    """Sum of the 4 nearest neighbours (nothing beyond the frame)."""
+    out = np.zeros_like(q)
+    out[..., 1:, :] += q[..., :-1, :]
+    out[..., :-1, :] += q[..., 1:, :]
+    out[..., :, 1:] += q[..., :, :-1]
+    out[..., :, :-1] += q[..., :, 1:]
+    return out
 
 
 def nonlinearity(signal, deficit_at_50ke, cubic_term=0.0):
@@ -220,8 +349,70 @@ def nonlinearity(signal, deficit_at_50ke, cubic_term=0.0):
     return signal * (1.0 - (d - b) * u - b * u * u)
 
 
-def derived_params(effect, params, uncertainties=None, cov=None):
+def reciprocity(charge, alpha_per_decade):
+    """``C (C / 1 e-)^(alpha / ln 10)`` for ``C > 0``: a response rising by
+    ``alpha`` per decade of signal (the power law of reciprocity failure)."""
+    a = float(alpha_per_decade)
+    if a == 0.0:
+        return charge
+    c = np.asarray(charge, dtype=np.float64)
+    safe = np.maximum(c, RECIPROCITY_REFERENCE)
+    return np.where(c > 0, c * np.exp(a / math.log(10.0) * np.log(safe / RECIPROCITY_REFERENCE)),
+                    c)
+
+
+_SPLINE_CACHE = {}  # (id(scene), frame) -> (scene, coefficients): fits shift the same scenes
+
+
+def _spline_coefficients(scene, k, frame):
+    from scipy.ndimage import spline_filter
+
+    hit = _SPLINE_CACHE.get((id(scene), k))
+    if hit is not None and hit[0] is scene:
+        return hit[1]
+    coeffs = spline_filter(frame, order=5, mode="nearest")
+    if len(_SPLINE_CACHE) > 32:
+        _SPLINE_CACHE.clear()
+    _SPLINE_CACHE[(id(scene), k)] = (scene, coeffs)
+    return coeffs
+
+
+def shift_scene(scene, shift_y_px, shift_x_px):
+    """SCENE displaced by ``(shift_y_px, shift_x_px)`` pixels.
+
+    A quintic spline of the pixel values: the picture is a scene smooth on
+    the pixel scale (sources imaged through optics), for which it is
+    accurate to a fraction of the shot noise of a 50 ke- star at 0.3 px.
+    Single-pixel events and sharp edges are not band-limited and are not
+    shifted faithfully (see ``docs/discover.md``). The frame is extended by
+    its edge values; a stack of frames is shifted frame by frame.
+    """
+    from scipy.ndimage import shift
+
+    dy, dx = float(shift_y_px), float(shift_x_px)
+    scene = np.asarray(scene, dtype=np.float64)
+    if dy == 0.0 and dx == 0.0:
+        return scene
+    frames = scene.reshape((-1,) + scene.shape[-2:])
+    out = np.stack([shift(_spline_coefficients(scene, k, f), (dy, dx), order=5, mode="nearest",
+                          prefilter=False) for k, f in enumerate(frames)])
+    return out.reshape(scene.shape)
+
+
+def derived_params(effect, params, uncertainties=None, cov=None, readnoise=None):
     """Extra reported quantities (and their uncertainties) derived from the fit."""
+    if effect == "flat_field":
+        u = params["response_variance"]
+        su = (uncertainties or {}).get("response_variance", float("nan")) if cov is None \
+            else float(np.sqrt(max(cov[0, 0], 0.0)))
+        rms = math.sqrt(max(u, 0.0))
+        return {"response_rms": rms}, {"response_rms": su / (2 * rms) if rms > 0 else su ** 0.5}
+    if effect == "excess_read_noise" and readnoise is not None:
+        e = params["excess_variance_e2"]
+        se = (uncertainties or {}).get("excess_variance_e2", float("nan")) if cov is None \
+            else float(np.sqrt(max(cov[0, 0], 0.0)))
+        rn = math.sqrt(max(readnoise ** 2 + e, 0.0))
+        return {"readnoise_e": rn}, {"readnoise_e": se / (2 * rn) if rn > 0 else float("nan")}
     if effect != "anisotropic_ipc":
         return {}, {}
     h, v = params["weight_horizontal"], params["weight_vertical"]

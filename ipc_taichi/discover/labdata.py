@@ -1,6 +1,6 @@
 """The lab data format of ``ipc-taichi discover`` and a generator for it.
 
-Format (``shared/DISCOVERY_FORMAT.md``): a PRIMARY HDU with ``READNOIS``
+Format (``docs/discovery_format.md``): a PRIMARY HDU with ``READNOIS``
 (required, e- RMS), ``SHOTNOIS`` (default T) and ``IPCLAW`` (default
 ``donlon2018``), then K >= 1 pairs of 2-D image HDUs ``EXTNAME='SCENE'`` and
 ``EXTNAME='MEASURED'`` with the same ``EXTVER`` and shape. Data may be
@@ -19,8 +19,8 @@ import os
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.special import ndtr
 
+from ..datasets import add_gaussian_spot
 from ..errors import IPCInputError, LawError
 from ..fitsio import atomic_output
 from ..laws import get_law
@@ -151,22 +151,6 @@ def write_lab(path, pairs, readnoise, law="donlon2018", shot_noise=True, overwri
         fits.HDUList(hdus).writeto(tmp)
 
 
-def _gaussian_spot(scene, y0, x0, flux, fwhm):
-    """Add a pixel-integrated circular Gaussian of total ``flux`` centred at (y0, x0)."""
-    sigma = fwhm / (2.0 * math.sqrt(2.0 * math.log(2.0)))
-    r = 4
-    iy, ix = int(round(y0)), int(round(x0))
-    ys = np.arange(iy - r, iy + r + 1)
-    xs = np.arange(ix - r, ix + r + 1)
-    py = ndtr((ys + 0.5 - y0) / sigma) - ndtr((ys - 0.5 - y0) / sigma)
-    px = ndtr((xs + 0.5 - x0) / sigma) - ndtr((xs - 0.5 - x0) / sigma)
-    spot = flux * np.outer(py, px)
-    ny, nx = scene.shape
-    y0c, x0c = max(iy - r, 0), max(ix - r, 0)
-    y1c, x1c = min(iy + r + 1, ny), min(ix + r + 1, nx)
-    scene[y0c:y1c, x0c:x1c] += spot[y0c - (iy - r):y1c - (iy - r), x0c - (ix - r):x1c - (ix - r)]
-
-
 def make_scene(shape, rng, hot_fraction=0.55, source_fraction=0.35):
     """A lab-like expected-charge scene (electrons).
 
@@ -206,31 +190,42 @@ def make_scene(shape, rng, hot_fraction=0.55, source_fraction=0.35):
                 peak = math.exp(rng.uniform(math.log(500.0), math.log(50000.0)))
                 sigma = fwhm / (2.0 * math.sqrt(2.0 * math.log(2.0)))
                 flux = peak * 2.0 * math.pi * sigma ** 2
-                _gaussian_spot(scene, yc + rng.uniform(-0.5, 0.5), xc + rng.uniform(-0.5, 0.5),
+                add_gaussian_spot(scene, yc + rng.uniform(-0.5, 0.5), xc + rng.uniform(-0.5, 0.5),
                                flux, fwhm)
     return scene
 
 
-def effect_params(name, value, law):
+def effect_params(name, value, readnoise=None):
     """Model parameters of a hidden effect from its ``--effect NAME=VALUE`` value.
 
     ``diagonal_ipc`` / ``second_neighbor_ipc``: absolute coupling at zero
     signal; ``anisotropic_ipc``: ``(h - v) / mean`` with ``h = 1 + a/2``,
     ``v = 1 - a/2``; ``classical_nonlinearity``: deficit at 50 ke-;
-    ``brighter_fatter``: deflection at 50 ke-; ``charge_diffusion``: Gaussian
-    sigma in pixels; ``dark_current``: electrons. (``signal_dependent_ipc``
-    takes a law name and is handled by :func:`simulate_lab`.)
+    ``brighter_fatter``: deflection at 50 ke- along x and along y, both
+    ``value`` (an isolated 50 ke- pixel loses ``value / 2`` of its charge,
+    see :func:`~.effects.brighter_fatter`); ``charge_diffusion``:
+    sigma in pixels; ``dark_current``: electrons; ``flat_field``: RMS of the
+    response map; ``reciprocity_failure``: alpha per decade;
+    ``excess_read_noise``: the true read noise (e- RMS); ``misregistration``:
+    shift along x (pixels). (``signal_dependent_ipc`` takes a law name and is
+    handled by :func:`simulate_lab`.)
     """
     v = float(value)
     return {
-        "diagonal_ipc": {"alpha_diag": v},
-        "anisotropic_ipc": {"weight_horizontal": 1.0 + v / 2, "weight_vertical": 1.0 - v / 2},
-        "second_neighbor_ipc": {"alpha_second": v},
-        "classical_nonlinearity": {"deficit_at_50ke": v, "cubic_term": 0.0},
-        "brighter_fatter": {"deflection_at_50ke": v},
-        "charge_diffusion": {"sigma_px": v},
-        "dark_current": {"dark_e": v},
-    }[name]
+        "diagonal_ipc": lambda: {"alpha_diag": v},
+        "anisotropic_ipc": lambda: {"weight_horizontal": 1.0 + v / 2,
+                                    "weight_vertical": 1.0 - v / 2},
+        "second_neighbor_ipc": lambda: {"alpha_second": v},
+        "classical_nonlinearity": lambda: {"deficit_at_50ke": v, "cubic_term": 0.0},
+        "brighter_fatter": lambda: {"deflection_x_at_50ke": v, "deflection_y_at_50ke": v,
+                                    "upwind": 0.5, "reach": 0.0},
+        "charge_diffusion": lambda: {"sigma_px": v},
+        "dark_current": lambda: {"dark_e": v},
+        "flat_field": lambda: {"response_variance": v * v},
+        "reciprocity_failure": lambda: {"alpha_per_decade": v},
+        "excess_read_noise": lambda: {"excess_variance_e2": v * v - float(readnoise) ** 2},
+        "misregistration": lambda: {"shift_y_px": 0.0, "shift_x_px": v},
+    }[name]()
 
 
 def simulate_lab(path, effects=None, readnoise=12.0, seed=0, law="donlon2018", pairs=2,
@@ -264,13 +259,14 @@ def simulate_lab(path, effects=None, readnoise=12.0, seed=0, law="donlon2018", p
     data_law = get_law(law)
     if "signal_dependent_ipc" in effects:
         data_law = get_law(effects.pop("signal_dependent_ipc"))
-    params = {name: effect_params(name, value, data_law) for name, value in effects.items()}
+    params = {name: effect_params(name, value, readnoise) for name, value in effects.items()}
     truth = DetectorModel(data_law, readnoise, shot_noise, params)
     rng = np.random.default_rng(seed)
     out = []
-    for _ in range(int(pairs)):
-        scene = make_scene(shape, rng)
-        measured = truth.simulate(scene, rng)
+    scenes = np.stack([make_scene(shape, rng) for _ in range(int(pairs))])
+    # one call for all pairs: they share the file's response map (flat_field)
+    for scene, measured in zip(scenes, truth.simulate(scenes, rng)):
+        measured = measured.copy()
         if nan_fraction > 0:
             measured[rng.random(measured.shape) < nan_fraction] = np.nan
         out.append((scene, measured))

@@ -2,56 +2,71 @@
 
 The chain, applied to a SCENE (the expected charge, electrons)
 ----------------------------------------------------------------
-1. **charge_diffusion** -- arriving carriers spread before they are
-   collected: a blur of the expected charge. It acts on photo-charge on its
-   way to the junction, so it comes first and before shot noise.
-2. **dark_current** -- charge generated in the pixel itself: added to the
-   expected collected charge (it is collected like photo-charge, so it has
-   shot noise and is coupled by IPC).
-3. **brighter_fatter** -- charge already collected repels new charge into
-   the neighbours: it redistributes the *arriving* charge, so it belongs to
-   collection, after diffusion and dark current and before shot noise.
-4. **shot noise** -- Poisson noise of the collected charge (``SHOTNOIS``).
-5. **IPC** -- capacitive coupling between the pixel nodes acts on the
-   charge that sits on them (collected charge, noise included): the core
-   engine, ``ipc_taichi.couple`` with the law (``IPCLAW``, or a fitted
+0. **misregistration** -- SCENE displaced by a sub-pixel shift: a data
+   problem, not a detector effect, so it comes before everything else (and
+   the search fits it first: every effect downstream sees its dipoles).
+1. **reciprocity_failure** -- the photo-charge collected depends on the
+   count rate: it acts on the arriving light, before anything is collected.
+2. **charge_diffusion** -- carriers generated across the pixel area spread
+   before they are collected: a blur of the expected charge, before shot noise.
+3. **dark_current** -- charge generated in the pixel itself: added to the
+   expected collected charge (collected like photo-charge, so it has shot
+   noise and is coupled by IPC).
+4. **brighter_fatter** -- charge already collected moves the pixel
+   boundaries: it redistributes the *arriving* charge, so it belongs to
+   collection, after 1-3 and before shot noise.
+5. **flat_field** -- a fixed per-pixel response (QE or gain) about 1: the
+   same map in every pair of a file. Its map is unknown, so the model
+   carries it as noise: a variance ``u sum_q J_pq^2 C_q^2`` per pixel
+   (the map's noise coupled by IPC), correlated across the pairs
+   (:mod:`ipc_taichi.discover.search` uses the exact correlated
+   likelihood); a simulation draws one map per file.
+6. **shot noise** -- Poisson noise of the collected charge (``SHOTNOIS``).
+7. **IPC** -- capacitive coupling between the pixel nodes acts on the
+   charge that sits on them (collected charge, noise included): the shared
+   chain ``ipc_taichi.detector`` (``collect``, ``read_out``, ``read_noise``)
+   with the law (``IPCLAW``, or a fitted
    signal-dependent law) and the geometry terms (anisotropic, diagonal,
    second neighbour).
-6. **classical_nonlinearity** -- after IPC. The non-linearity is the node's
-   voltage response to what is on it (the node capacitance changes with
-   its bias); what the read-out sees on a node already includes the coupled
-   contribution of its neighbours, so the response curve applies to the
-   coupled signal. (Peers apply it before IPC; the two orders differ by
-   terms of order alpha x deficit, about 0.03 % of a neighbour's signal for
-   alpha = 1 % and a 3 % deficit, below the noise of any frame here.)
-7. **read noise** -- Gaussian, ``READNOIS`` electrons RMS, added last.
+8. **classical_nonlinearity** -- after IPC. The non-linearity is the node's
+   voltage response to what is on it; what the read-out sees on a node
+   already includes the coupled contribution of its neighbours. (Peers
+   apply it before IPC; the two orders differ by terms of order alpha x
+   deficit, about 0.03 % of a neighbour's signal for alpha = 1 % and a 3 %
+   deficit, below the noise of any frame here.)
+9. **read noise** -- Gaussian, ``READNOIS`` electrons RMS, plus
+   ``excess_read_noise`` (a variance) when it is in the model.
 
 Prediction
 ----------
 :meth:`DetectorModel.predict` returns the expected value and variance per
-pixel. The expected collected charge ``C`` comes from steps 1-3; the mean is
-``g(C)`` with ``g`` the read-out chain (steps 5-6). The variance propagates
+pixel. The expected collected charge ``C`` comes from steps 0-5; the mean is
+``g(C)`` with ``g`` the read-out chain (steps 7-8). The variance propagates
 the Poisson variance of ``C`` through ``g`` to first order,
-``Var M_p = sum_q J_pq^2 C_q + READNOIS^2`` with ``J = dg/dC`` the exact
-Jacobian of the (non-linear, signal-dependent) read-out chain; ``J`` is
-obtained column-colour by column-colour from a few evaluations of ``g``,
-perturbing pixels far enough apart that their footprints do not overlap.
+``Var M_p = sum_q J_pq^2 C_q + read variance (+ u sum_q J_pq^2 C_q^2)`` with
+``J = dg/dC`` the exact Jacobian of the (non-linear, signal-dependent)
+read-out chain; ``J`` is obtained colour by colour from one evaluation of
+``g`` each, perturbing pixels far enough apart that their footprints do not
+overlap.
 """
 
+import math
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ..coupling import couple
+from ..detector import collect, read_noise, read_out
 from ..geometry import Geometry
+from ..model import CouplingModel
 from ..laws import ParametricLaw, get_law
 from .effects import (EFFECTS, LAW_SCALE_DIFF, LAW_SCALE_LEVEL, brighter_fatter, diffuse,
-                      nonlinearity)
+                      nonlinearity, reciprocity, shift_scene)
 
 __all__ = ["DetectorModel", "CHAIN_ORDER", "is_constant_law"]
 
-CHAIN_ORDER = ("charge_diffusion", "dark_current", "brighter_fatter", "shot_noise", "ipc",
-               "classical_nonlinearity", "read_noise")
+CHAIN_ORDER = ("misregistration", "reciprocity_failure", "charge_diffusion", "dark_current",
+               "brighter_fatter", "flat_field", "shot_noise", "ipc", "classical_nonlinearity",
+               "read_noise", "excess_read_noise")
 
 
 def is_constant_law(law):
@@ -144,64 +159,118 @@ class DetectorModel:
 
     # -- the chain ----------------------------------------------------------
     def collected(self, scene):
-        """Expected collected charge (steps 1-3) from the expected scene charge."""
+        """Expected collected charge (steps 0-4) from the expected scene charge."""
         c = np.asarray(scene, dtype=np.float64)
+        if "misregistration" in self.effects:
+            p = self.effects["misregistration"]
+            # the spline undershoots next to sharp features: no negative charge
+            c = np.clip(shift_scene(c, p["shift_y_px"], p["shift_x_px"]), 0.0, None)
+        if "reciprocity_failure" in self.effects:
+            c = reciprocity(c, self._p("reciprocity_failure", "alpha_per_decade"))
         if "charge_diffusion" in self.effects:
             c = diffuse(c, self._p("charge_diffusion", "sigma_px"))
         if "dark_current" in self.effects:
             c = c + self._p("dark_current", "dark_e")
         if "brighter_fatter" in self.effects:
-            c = brighter_fatter(c, self._p("brighter_fatter", "deflection_at_50ke"))
+            p = self.effects["brighter_fatter"]
+            c = brighter_fatter(c, p["deflection_x_at_50ke"], p["deflection_y_at_50ke"],
+                                p["upwind"], p["reach"])
         return c
 
     def readout(self, signal):
-        """The node chain after collection (steps 5-6), without read noise."""
+        """The node chain after collection (steps 7-8), without read noise."""
+        return read_out(signal, self.coupling_model(), self._response())
+
+    def coupling_model(self):
+        """The :class:`~ipc_taichi.model.CouplingModel` of the coupling stage."""
         law = self.ipc_law()
-        m = np.asarray(couple(signal, law=law, geometry=self.geometry(law), edge=self.edge),
-                       dtype=np.float64)
-        if "classical_nonlinearity" in self.effects:
-            p = self.effects["classical_nonlinearity"]
-            m = nonlinearity(m, p["deficit_at_50ke"], p["cubic_term"])
-        return m
+        return CouplingModel.resolve(law, self.geometry(law), self.edge)
+
+    def _response(self):
+        """The read-out response after IPC (``classical_nonlinearity``), or ``None``."""
+        if "classical_nonlinearity" not in self.effects:
+            return None
+        p = dict(self.effects["classical_nonlinearity"])
+        return lambda m: nonlinearity(m, p["deficit_at_50ke"], p["cubic_term"])
 
     def expected(self, scene):
         """Expected measured frame."""
         return self.readout(self.collected(scene))
 
-    def predict(self, scene):
-        """Expected value and variance per pixel, ``(mean, variance)``."""
+    def response_variance(self):
+        """Variance of the per-pixel response (``flat_field``), 0 when absent."""
+        return float(self.effects.get("flat_field", {}).get("response_variance", 0.0))
+
+    def read_variance(self):
+        """Read-noise variance: ``READNOIS^2`` plus ``excess_read_noise`` (kept positive)."""
+        extra = float(self.effects.get("excess_read_noise", {}).get("excess_variance_e2", 0.0))
+        return max(float(self.readnoise) ** 2 + extra, 1e-6)
+
+    def predict_parts(self, scene):
+        """``(mean, independent variance, response scale)``.
+
+        The independent variance is shot and read noise. The response map
+        (``flat_field``) multiplies the collected charge, so a map of
+        variance ``u`` adds ``u a^2`` with ``a^2 = sum_q J_pq^2 C_q^2``: the
+        map's noise is coupled (and smoothed) by IPC like any charge. It is
+        shared by every pair of a file, so it is kept apart (see the module
+        docstring).
+        """
         c = self.collected(scene)
         mean = self.readout(c)
-        var = np.full(mean.shape, float(self.readnoise) ** 2)
+        var = np.full(mean.shape, self.read_variance())
+        shot, scale2 = self._propagated_variances(c, mean)
         if self.shot_noise:
-            var = var + self._propagated_shot_variance(c, mean)
-        return mean, var
+            var = var + shot
+        return mean, var, np.sqrt(scale2)
 
-    def _propagated_shot_variance(self, c, mean, step=0.1):
-        """``sum_q J_pq^2 C_q`` with ``J`` the Jacobian of :meth:`readout` at ``C``.
+    def predict(self, scene):
+        """Expected value and variance per pixel, ``(mean, variance)``."""
+        mean, var, a = self.predict_parts(scene)
+        u = self.response_variance()
+        return mean, (var + u * a * a if u > 0 else var)
 
-        Pixels of one colour are perturbed together by ``step * sqrt(C_q)``;
-        their footprints do not overlap, so each output pixel sees exactly one
-        perturbed source and ``(dM_p / step)^2 = J_pq^2 C_q``.
+    def _propagated_variances(self, c, mean, step=1e-3):
+        """``(sum_q J_pq^2 C_q, sum_q J_pq^2 C_q^2)`` with ``J`` the Jacobian of
+        :meth:`readout` at ``C``.
+
+        Pixels of one colour are perturbed together by ``step * C_q``; their
+        footprints do not overlap, so each output pixel ``p`` sees exactly one
+        perturbed source ``q`` and ``dM_p / step = J_pq C_q``. Squared, that
+        is the second sum; divided by ``C_q`` (the source's charge spread
+        over its footprint), the first.
         """
         offsets = [o for o, _ in self.geometry().weights]
+        footprint = {(0, 0)} | set(offsets) | {(-a, -b) for a, b in offsets}
         period, slope = _colouring(offsets)
         ny, nx = c.shape[-2:]
         colour = (np.arange(nx)[None, :] + slope * np.arange(ny)[:, None]) % period
-        amp = step * np.sqrt(np.clip(c, 0.0, None))
-        var = np.zeros_like(mean)
+        cc = np.clip(c, 0.0, None)
+        shot = np.zeros_like(mean)
+        scale2 = np.zeros_like(mean)
         for k in range(period):
-            dm = self.readout(c + np.where(colour == k, amp, 0.0)) - mean
-            var += (dm / step) ** 2
-        return var
+            src = np.where(colour == k, cc, 0.0)
+            dm = (self.readout(c + step * src) - mean) / step  # J_pq C_q
+            spread = np.zeros_like(src)
+            for dy, dx in footprint:  # C_q at every pixel of q's footprint
+                spread[..., max(dy, 0):ny + min(dy, 0), max(dx, 0):nx + min(dx, 0)] += \
+                    src[..., max(-dy, 0):ny + min(-dy, 0), max(-dx, 0):nx + min(-dx, 0)]
+            scale2 += dm * dm
+            shot += np.where(spread > 0, dm * dm / np.where(spread > 0, spread, 1.0), 0.0)
+        return shot, scale2
 
     def simulate(self, scene, rng):
-        """A noisy measured frame (seeded ``numpy.random.Generator``)."""
+        """A noisy measured frame (seeded ``numpy.random.Generator``).
+
+        A 3-D ``scene`` is a stack of pairs of one file: they share one
+        response map (``flat_field``), as the pairs of a file share pixels.
+        """
         c = self.collected(scene)
-        if self.shot_noise:
-            c = rng.poisson(np.clip(c, 0.0, None)).astype(np.float64)
-        m = self.readout(c)
-        return m + rng.normal(0.0, float(self.readnoise), m.shape)
+        u = self.response_variance()
+        if u > 0:
+            c = c * (1.0 + math.sqrt(u) * rng.standard_normal(c.shape[-2:]))
+        c = collect(c, rng if self.shot_noise else None)
+        return self.readout(c) + read_noise(c.shape, math.sqrt(self.read_variance()), rng)
 
     def describe(self):
         """One line: law, read noise and the effects with their parameters."""

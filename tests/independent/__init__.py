@@ -1,0 +1,1 @@
+"""Data generators written without the project's effect code, for blind tests."""
