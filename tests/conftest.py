@@ -29,6 +29,25 @@ def pytest_collection_modifyitems(config, items):
 
 
 @pytest.fixture
+def cli(capsys):
+    """``ipc-taichi ARGS`` in this process (Taichi starts once per test
+    process): returns ``returncode``, ``stdout``, ``stderr``."""
+    from types import SimpleNamespace
+
+    from ipc_taichi.cli import main
+
+    def run(*args):
+        try:
+            code = main([str(a) for a in args])
+        except SystemExit as exc:  # --help, argparse usage errors
+            code = exc.code
+        out = capsys.readouterr()
+        return SimpleNamespace(returncode=code, stderr=out.err, stdout=out.out)
+
+    return run
+
+
+@pytest.fixture
 def cpu():
     """The CPU/f64 runtime the tests assume."""
     import ipc_taichi

@@ -3,13 +3,10 @@
 import os
 import subprocess
 import sys
-from types import SimpleNamespace
 
 import numpy as np
-import pytest
 from astropy.io import fits
 
-from ipc_taichi.cli import main
 from ipc_taichi.reference import couple_reference, decouple_reference
 
 ENV = dict(os.environ, IPC_TAICHI_ARCH="cpu", IPC_TAICHI_PRECISION="f64")
@@ -19,17 +16,6 @@ def run_cli(*args):
     """``ipc-taichi ARGS`` as a user runs it (a new process)."""
     return subprocess.run([sys.executable, "-m", "ipc_taichi.cli", *map(str, args)],
                           capture_output=True, text=True, env=ENV, timeout=300)
-
-
-@pytest.fixture
-def cli(capsys):
-    """``ipc-taichi ARGS`` in this process."""
-    def run(*args):
-        code = main([str(a) for a in args])
-        out = capsys.readouterr()
-        return SimpleNamespace(returncode=code, stderr=out.err, stdout=out.out)
-
-    return run
 
 
 def test_many_files_one_corrupt(tmp_path, rng):

@@ -7,30 +7,14 @@ the product pipeline is used to make them.
 """
 
 import os
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
 from astropy.io import fits
 
-from ipc_taichi.cli import main
 from ipc_taichi.reference import couple_reference
 DO_NOT_USE, SATURATED, REFERENCE_PIXEL = 1, 2, 2 ** 31
 GAIN, EFFINTTM, BORDER = 2.0, 100.0, 4
-
-
-@pytest.fixture
-def cli(capsys):
-    """``ipc-taichi ARGS`` in this process (Taichi starts once for the file)."""
-    def run(*args):
-        try:
-            code = main([str(a) for a in args])
-        except SystemExit as exc:  # --help, argparse usage errors
-            code = exc.code
-        out = capsys.readouterr()
-        return SimpleNamespace(returncode=code, stderr=out.err, stdout=out.out)
-
-    return run
 
 
 def _primary():

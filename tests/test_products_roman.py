@@ -5,27 +5,13 @@ filled with a truth in electrons coupled by the independent NumPy model.
 """
 
 import os
-from types import SimpleNamespace
 
 import numpy as np
-import pytest
 import roman_datamodels.datamodels as rdm
 
-from ipc_taichi.cli import main
 from ipc_taichi.reference import couple_reference
 DO_NOT_USE = 1
 GAIN, EXPTIME = 2.0, 139.8
-
-
-@pytest.fixture
-def cli(capsys):
-    """``ipc-taichi ARGS`` in this process."""
-    def run(*args):
-        code = main([str(a) for a in args])
-        out = capsys.readouterr()
-        return SimpleNamespace(returncode=code, stderr=out.err, stdout=out.out)
-
-    return run
 
 
 def _next_to(mask):

@@ -6,30 +6,14 @@ import signal
 import subprocess
 import sys
 import time
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
 from astropy.io import fits
 
-from ipc_taichi.cli import main
 from ipc_taichi.reference import couple_reference
 
 ENV = dict(os.environ, IPC_TAICHI_ARCH="cpu", IPC_TAICHI_PRECISION="f64")
-
-
-@pytest.fixture
-def cli(capsys):
-    """``ipc-taichi ARGS`` in this process."""
-    def run(*args):
-        try:
-            code = main([str(a) for a in args])
-        except SystemExit as exc:  # --help, argparse usage errors
-            code = exc.code
-        out = capsys.readouterr()
-        return SimpleNamespace(returncode=code, stderr=out.err, stdout=out.out)
-
-    return run
 
 
 def _start(*args):
