@@ -6,5 +6,7 @@ One module per concept: :mod:`analysis.psf` (optical and effective PSFs),
 flow-chart image simulation), :mod:`analysis.deconvolution` (Lucy-Richardson
 and Wiener baselines), :mod:`analysis.photometry` (photutils PSF fitting of
 blended pairs), :mod:`analysis.photometry_forward` (IPC-aware forward-model
-fitting) and :mod:`analysis.binary` (the binary-star grid study). Taichi is only initialised when IPC is applied.
+fitting), :mod:`analysis.binary` (the binary-star grid study) and
+:mod:`analysis.field_ipc` (IPC as laboratories measure it: flat-field
+autocorrelation and hot pixels). Taichi is only initialised when IPC is applied.
 """

@@ -22,14 +22,27 @@ stars in that kind of frame (:data:`FITS`): the truth ePSF for truth frames,
 the coupled ePSF at the primary's flux for coupled frames, the decoupled ePSF
 for decoupled frames; plus ``coupled_optical``: coupled frames fitted with the
 IPC-free PSF, as the paper did ("fitting of the F405N WebbPSF to the IPC
-coupled data").
+coupled data"), and ``coupled_brightpsf``: coupled frames fitted with the
+coupled ePSF of a bright isolated star (the abstract's scenario of a field
+star's PSF used on a fainter blend; run for the 4:1 pair 3 px apart).
+
+Detection (:func:`analysis.photometry.detect_stars`, IRAFStarFinder) runs on
+the noise-free coupled and truth frames (only) at each ``min_separation`` of
+:data:`DETECT_MIN_SEPARATIONS`, so that what merges a close pair (the finder's
+setting, the optics, or IPC) can be told apart.
+
+**Fitter choices** (:func:`fitter_choices`): the paper's separation error of
+a coupled 3 px pair fitted with the IPC-free PSF under the choices a user
+makes (one group or each star alone, fit box, pixel-integrated or
+point-sampled frames and PSF).
 
 **Methods** (:class:`MethodStudy`): a 4:1 pair 3 px apart with Poisson noise
 and growing read noise, fitted (a) plainly on the coupled frame with the
 coupled ePSF, (b) after decoupling with the decoupled ePSF, (c) by the
 IPC-aware forward model (:mod:`analysis.photometry_forward`) on the coupled
 frame with the IPC-free ePSF. (a)-(c) use one least-squares fitter on the same
-pixels; (a) and (b) are repeated with photutils as a cross-check.
+pixels, weighted by the noise model (Poisson + read noise) on noisy frames;
+(a) and (b) are repeated with photutils (unweighted) as a cross-check.
 
 **Runtime.** Tasks (one scene at the 16 offsets) run in a pool of processes
 (``spawn``: Taichi has one runtime per process and initialises lazily in each
@@ -42,6 +55,7 @@ key made of the task's parameters and a hash of the sources it depends on
 import hashlib
 import json
 import os
+import time
 import warnings
 from dataclasses import asdict, dataclass, field
 
@@ -51,8 +65,9 @@ from .photometry import detect_stars, fit_stars, image_psf, pair_errors
 from .photometry_forward import fit_stars_forward
 from .simulate import MAGNITUDES, flux_from_mag, simulate
 
-__all__ = ["FLUX", "SEPARATIONS", "RATIOS", "OFFSETS", "FITS", "METHODS",
-           "BinaryGrid", "MethodStudy", "pair_frames", "run_study", "summarise"]
+__all__ = ["FLUX", "SEPARATIONS", "RATIOS", "OFFSETS", "FITS", "METHODS", "DETECT_MIN_SEPARATIONS",
+           "BinaryGrid", "MethodStudy", "pair_frames", "run_study", "summarise",
+           "fitter_choices"]
 
 FLUX = {name: float(flux_from_mag(mag)) for name, mag in MAGNITUDES.items()}
 """Total counts of each primary in 10 ks (:mod:`analysis.simulate`'s zero point: the
@@ -62,9 +77,17 @@ SEPARATIONS = (2.0, 2.5, 3.0, 3.5, 4.0, 4.5, 5.0, 20.0)
 RATIOS = (1.0, 0.5, 0.25, 0.125)
 OFFSETS = tuple((dx, dy) for dy in (0.0, 0.25, 0.5, 0.75) for dx in (0.0, 0.25, 0.5, 0.75))
 
-FITS = {"truth": ("truth", "truth"), "coupled": ("coupled", "coupled"),
-        "coupled_optical": ("coupled", "truth"), "decoupled": ("decoupled", "decoupled")}
-"""Fit name -> (frame fitted, stage of the effective PSF used)."""
+FITS = {"truth": ("truth", "truth", None), "coupled": ("coupled", "coupled", None),
+        "coupled_optical": ("coupled", "truth", None), "decoupled": ("decoupled", "decoupled", None),
+        "coupled_brightpsf": ("coupled", "coupled", "bright")}
+"""Fit name -> (frame fitted, stage of the effective PSF used, brightness whose flux the
+PSF's IPC saw: ``None`` = the primary's own). ``coupled_brightpsf`` is the abstract's
+scenario: the PSF measured on a bright isolated field star, used on every pair."""
+
+DETECT_MIN_SEPARATIONS = (1.0, 2.0, 3.0, 5.25)
+"""``min_separation`` values [px] of the detection sweep; 5.25 = 2.5 x FWHM, photutils'
+default, which merges any closer pair whatever the image holds."""
+DETECT_FRAMES = ("coupled", "truth")
 
 METHODS = ("plain", "decoupled", "forward", "plain_photutils", "decoupled_photutils")
 
@@ -149,7 +172,7 @@ class MethodStudy:
 
 
 def pair_frames(psf, brightness, ratio, separation, offsets, law="donlon2018", half=12, seed=None,
-                read_noise=0.0, oversample=4):
+                read_noise=0.0, oversample=4, sampling="integrated"):
     """The truth, coupled and decoupled frames of a pair at several sub-pixel offsets.
 
     Each frame comes from :func:`analysis.simulate.simulate` (the paper's flow
@@ -180,6 +203,8 @@ def pair_frames(psf, brightness, ratio, separation, offsets, law="donlon2018", h
     read_noise : float
         RMS read noise [e-].
     oversample : int
+    sampling : {"integrated", "point"}
+        Detector model (:func:`analysis.psf.point_source_image`).
 
     Returns
     -------
@@ -205,7 +230,8 @@ def pair_frames(psf, brightness, ratio, separation, offsets, law="donlon2018", h
             images = simulate([(x1, y1, mags[0]), (x2, y2, mags[1])], shape, psf=psf,
                               background=0.0, dark=0.0, poisson=seed is not None,
                               read_noise=read_noise if seed is not None else 0.0, law=law,
-                              seed=0 if seed is None else seed + k, oversample=oversample)
+                              seed=0 if seed is None else seed + k, oversample=oversample,
+                              sampling=sampling)
             for name in frames:
                 frames[name].append(getattr(images, name))
     return positions, images.fluxes, {name: np.stack(v) for name, v in frames.items()}
@@ -222,7 +248,7 @@ def _build_state(study):
 
     psf = optical_psf(study.psf_source, study.oversample)
     epsf = {("truth", None): effective_psf(psf, 1.0, stage="truth", oversample=study.oversample)}
-    for name in study.brightness:
+    for name in sorted(set(study.brightness) | {"bright"}):
         for stage in ("coupled", "decoupled"):
             epsf[(stage, name)] = effective_psf(psf, FLUX[name], stage=stage, law=study.law,
                                                 oversample=study.oversample)
@@ -237,6 +263,12 @@ def _init_worker(state):
 
 def _epsf(stage, name):
     return _STATE["epsf"][("truth", None) if stage == "truth" else (stage, name)]
+
+
+def _fit_psf(fit, name):
+    """Frame stage and photutils model of a fit in :data:`FITS` for primary ``name``."""
+    frame_stage, psf_stage, level = FITS[fit]
+    return frame_stage, _psf_model(psf_stage, level or name)
 
 
 def _psf_model(stage, name):
@@ -262,6 +294,11 @@ def _init_guess(pos, flux):
     return x, y, flux * np.asarray(_INIT_FLUX)
 
 
+def _scenario(task):
+    """Where the abstract's bright-star-PSF scenario is run: the 4:1 pair 3 px apart."""
+    return task["ratio"] == 0.25 and task["separation"] == 3.0
+
+
 def _grid_task(task):
     name, ratio = task["brightness"], task["ratio"]
     positions, flux, frames = pair_frames(_STATE["psf"], name, ratio, task["separation"],
@@ -269,20 +306,40 @@ def _grid_task(task):
                                           _task_seed(task), task["read_noise"], _STATE["oversample"])
     n = len(positions)
     out = {"flux_error": np.empty((len(FITS), n, 2)), "separation_error": np.empty((len(FITS), n)),
-           "flags": np.empty((len(FITS), n), dtype=int), "detected": np.empty(n, dtype=int)}
+           "flags": np.empty((len(FITS), n), dtype=int),
+           "detected": np.empty((len(DETECT_FRAMES), len(DETECT_MIN_SEPARATIONS), n), dtype=int)}
     # detection threshold: a fifth of the secondary's peak (noise-free), or 5 sigma
     peak2 = 0.11 * flux[1]
     threshold = 5 * task["read_noise"] if task["read_noise"] > 0 else 0.2 * peak2
     for k, pos in enumerate(positions):
         x0, y0, f0 = _init_guess(pos, flux)
-        for i, (frame_stage, psf_stage) in enumerate(FITS.values()):
-            fit = fit_stars(frames[frame_stage][k], _psf_model(psf_stage, name), x0, y0, f0,
+        for i, fit_name in enumerate(FITS):
+            if fit_name == "coupled_brightpsf" and (name == "bright" or not _scenario(task)):
+                # the bright primary's own PSF is the bright star's: the same fit; elsewhere
+                # the scenario is not run (it would cost a fifth more fits for no table)
+                same = name == "bright"
+                out["flux_error"][i, k] = out["flux_error"][list(FITS).index("coupled"), k] if same else np.nan
+                out["separation_error"][i, k] = (out["separation_error"][list(FITS).index("coupled"), k]
+                                                 if same else np.nan)
+                out["flags"][i, k] = out["flags"][list(FITS).index("coupled"), k] if same else 0
+                continue
+            frame_stage, model = _fit_psf(fit_name, name)
+            fit = fit_stars(frames[frame_stage][k], model, x0, y0, f0,
                             fit_shape=tuple(task["fit_shape"]))
             out["flux_error"][i, k], out["separation_error"][i, k] = pair_errors(
                 fit, pos[:, 0], pos[:, 1], flux)
             out["flags"][i, k] = fit.flags.max()
-        xd, yd = detect_stars(frames["coupled"][k], fwhm=2.1, threshold=max(threshold, 1e-9))
-        out["detected"][k] = sum(bool(np.any(np.hypot(xd - x, yd - y) < 0.5)) for x, y in pos)
+        if task["realisation"] >= 0:
+            # detection is studied on noise-free frames only (a finder call costs more
+            # than a fit here); noisy tasks mark it as not run
+            out["detected"][..., k] = -1
+            continue
+        for f, frame_stage in enumerate(DETECT_FRAMES):
+            for j, min_sep in enumerate(DETECT_MIN_SEPARATIONS):
+                xd, yd = detect_stars(frames[frame_stage][k], fwhm=2.1,
+                                      threshold=max(threshold, 1e-9), min_separation=min_sep)
+                out["detected"][f, j, k] = sum(bool(np.any(np.hypot(xd - x, yd - y) < 0.5))
+                                               for x, y in pos)
     return out
 
 
@@ -296,15 +353,18 @@ def _method_task(task):
     out = {"flux_error": np.empty((len(METHODS), n, 2)),
            "separation_error": np.empty((len(METHODS), n)),
            "flags": np.empty((len(METHODS), n), dtype=int)}
+    # noisy frames: every least-squares fit is weighted by the noise model (Poisson +
+    # read noise); noise-free frames have none, and are fitted unweighted
+    rn = task["read_noise"] if task["realisation"] >= 0 else None
     for k, pos in enumerate(positions):
         x0, y0, f0 = _init_guess(pos, flux)
         fits = {
             "plain": fit_stars_forward(frames["coupled"][k], _epsf("coupled", name), x0, y0, f0,
-                                       law=None, fit_shape=shape),
+                                       law=None, fit_shape=shape, read_noise=rn),
             "decoupled": fit_stars_forward(frames["decoupled"][k], _epsf("decoupled", name),
-                                           x0, y0, f0, law=None, fit_shape=shape),
+                                           x0, y0, f0, law=None, fit_shape=shape, read_noise=rn),
             "forward": fit_stars_forward(frames["coupled"][k], _epsf("truth", name), x0, y0, f0,
-                                         law=task["law"], fit_shape=shape),
+                                         law=task["law"], fit_shape=shape, read_noise=rn),
             "plain_photutils": fit_stars(frames["coupled"][k], _psf_model("coupled", name),
                                          x0, y0, f0, fit_shape=shape),
             "decoupled_photutils": fit_stars(frames["decoupled"][k], _psf_model("decoupled", name),
@@ -314,6 +374,69 @@ def _method_task(task):
             out["flux_error"][i, k], out["separation_error"][i, k] = pair_errors(
                 fits[method], pos[:, 0], pos[:, 1], flux)
             out["flags"][i, k] = fits[method].flags.max()
+    return out
+
+
+def fitter_choices(psf, brightness="bright", ratio=0.25, separation=3.0, offsets=OFFSETS,
+                   law="donlon2018", fit_shapes=(5, 7, 9, 11), oversample=4, half=12):
+    """Separation and flux errors of a coupled pair fitted with the IPC-free PSF, per fitter choice.
+
+    The paper's fit ("the F405N WebbPSF fitted to the IPC coupled data") on
+    noise-free coupled frames, repeated over the choices its text leaves
+    open: the detector model of the frames and of the PSF (``integrated``:
+    pixel-integrated frames fitted with the pixel-integrated ePSF;
+    ``point``: the paper's point-sampled frames (its Eq. 10) fitted with the
+    4x optical PSF used directly as an ePSF, as a WebbPSF file would be; and
+    ``mixed``: pixel-integrated frames fitted with the point-sampled PSF),
+    grouping (``grouped``: both stars in one simultaneous fit; ``alone``:
+    each star fitted on its own, the other's light left in its box) and the
+    fit box.
+
+    The truth frames are fitted the same way: ``coupled - truth`` is what IPC
+    adds to the error of that choice, the rest being PSF mismatch.
+
+    Returns
+    -------
+    list of dict
+        One per choice: ``sampling``, ``grouping``, ``fit_shape``, and for
+        ``coupled`` and ``truth`` frames ``separation_error_mpix`` and
+        ``flux_error_pct`` (primary, secondary) as ``[mean, std]`` over ``offsets``.
+    """
+    from .psf import effective_psf
+
+    epsf = {"integrated": effective_psf(psf, 1.0, stage="truth", oversample=oversample),
+            "point": effective_psf(psf, 1.0, stage="truth", oversample=oversample, sampling="point")}
+    # the point-sampled ePSF sums to o**2 only as a Riemann sum does; ImagePSF needs it exact
+    epsf["point"] *= oversample ** 2 / epsf["point"].sum()
+    frames = {}
+    for sampling in ("integrated", "point"):
+        pos, flux, fr = pair_frames(psf, brightness, ratio, separation, offsets, law, half,
+                                    oversample=oversample, sampling=sampling)
+        frames[sampling] = fr
+    setups = {"integrated": ("integrated", "integrated"), "point": ("point", "point"),
+              "mixed": ("integrated", "point")}
+    # an ungrouped fit is tried at the middle box only: its faint star slides onto the primary
+    choices = [("grouped", size) for size in fit_shapes] + [("alone", fit_shapes[len(fit_shapes) // 2])]
+    out = []
+    for sampling, (frame_kind, psf_kind) in setups.items():
+        model = image_psf(epsf[psf_kind], oversample)
+        for grouping, size in choices:
+            row = {"sampling": sampling, "grouping": grouping, "fit_shape": size}
+            for stage in ("coupled", "truth"):
+                flux_err, sep_err = [], []
+                for k, p in enumerate(pos):
+                    x0, y0, f0 = _init_guess(p, flux)
+                    fit = fit_stars(frames[frame_kind][stage][k], model, x0, y0, f0,
+                                    fit_shape=(size, size),
+                                    min_separation=None if grouping == "grouped" else 0.5)
+                    fe, se = pair_errors(fit, p[:, 0], p[:, 1], flux)
+                    flux_err.append(fe)
+                    sep_err.append(se)
+                flux_err, sep_err = np.array(flux_err), np.array(sep_err)
+                row[stage] = {"separation_error_mpix": [float(sep_err.mean()), float(sep_err.std())],
+                              "flux_error_pct": [[float(flux_err[:, j].mean()),
+                                                  float(flux_err[:, j].std())] for j in (0, 1)]}
+            out.append(row)
     return out
 
 
@@ -413,16 +536,30 @@ def run_study(study, workers=2, cache_path=None, progress=True):
             with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
                                      initializer=_init_worker, initargs=(state,)) as pool:
                 futures = {pool.submit(_run_task, tasks[i]): i for i in todo}
+                last = time.monotonic()
                 for future in as_completed(futures):
-                    results[futures[future]] = future.result()
+                    i = futures[future]
+                    results[i] = future.result()
                     bar.update()
+                    # save finished tasks now and then: an interrupted run keeps them
+                    if cache_path and time.monotonic() - last > _SAVE_EVERY:
+                        _store(cache, keys, results, cache_path)
+                        last = time.monotonic()
         if cache_path:
-            for i in todo:
-                for name, value in results[i].items():
-                    cache[f"{keys[i]}/{name}"] = value
-            _save_cache(cache_path, cache)
+            _store(cache, keys, results, cache_path)
     bar.close()
     return tasks, results
+
+
+_SAVE_EVERY = 60.0  # seconds between cache saves in a pooled run
+
+
+def _store(cache, keys, results, cache_path):
+    for key, result in zip(keys, results):
+        if result is not None:
+            for name, value in result.items():
+                cache[f"{key}/{name}"] = value
+    _save_cache(cache_path, cache)
 
 
 def _result_names(task):
@@ -444,8 +581,11 @@ def summarise(study, tasks, results):
         Method rows also give, per method, ``vs_forward``: mean and std of the
         paired differences from the forward fit on the same frames (the
         shared noise cancels, leaving what the method itself adds).
-        Grid rows also give ``detected``: the fraction of the pair's stars
-        that IRAFStarFinder found within 0.5 px on the coupled frame.
+        Noise-free grid rows also give ``detected[frame][min_separation]``: the
+        fraction of the pair's stars that IRAFStarFinder found within 0.5 px on
+        the coupled and on the truth frame, at each ``min_separation`` of
+        :data:`DETECT_MIN_SEPARATIONS` (keys formatted with ``%g``); ``None`` on
+        rows with noise (detection is not run there).
     """
     groups = {}
     for task, res in zip(tasks, results):
@@ -469,8 +609,11 @@ def summarise(study, tasks, results):
                 "separation_error_mpix": [float(sep[i].mean()), float(sep[i].std())],
                 "n": int(sep.shape[1]), "flagged": int(np.count_nonzero(flags[i]))}
         if study.kind == "grid":
-            detected = np.concatenate([r["detected"] for r in items])
-            row["detected"] = float(detected.mean() / 2)
+            detected = np.concatenate([r["detected"] for r in items], axis=-1)
+            row["detected"] = (None if key[3] else
+                               {frame: {f"{m:g}": float(detected[f, j].mean() / 2)
+                                        for j, m in enumerate(DETECT_MIN_SEPARATIONS)}
+                                for f, frame in enumerate(DETECT_FRAMES)})
         else:
             # the methods see the same noise: their paired differences isolate what
             # each does beyond the forward fit (e.g. the decoupled read-noise correlation)

@@ -10,12 +10,12 @@ centres (the photutils and ``ipc_taichi`` convention). An *effective PSF*
 (ePSF) here is a pixel-integrated PSF sampled every ``1/oversample`` detector
 pixel and normalised to sum to ``oversample**2``: photutils' ``ImagePSF``
 evaluates it with a bicubic spline so that a star of flux ``F`` has total
-``F`` in detector pixels (REFERENCE.md section 6).
+``F`` in detector pixels (docs/photometry.md).
 
 photutils 3.0.0 bug (fixed in 3.1): in one process, a grouped fit may reuse a
 cached flat model built for an earlier, *different* ``ImagePSF``. Every fit
 here clears ``photutils.psf._components._FLAT_MODEL_CACHE`` first, which is
-the documented workaround (REFERENCE.md section 6); it costs a model-class
+the workaround photutils' maintainers give (docs/photometry.md); it costs a model-class
 rebuild per fit (well under a millisecond).
 """
 
@@ -39,12 +39,18 @@ class StarFit:
     flags : ndarray of int, shape (n,)
         photutils' fit flags (0 = clean; see ``PSFPhotometry``). For the
         forward-model fitter: 0 = converged, 1 = not converged.
+    x_err, y_err, flux_err : ndarray, shape (n,), or None
+        Standard errors from the fit's covariance, where the fitter gives them
+        (the weighted forward-model fit); ``None`` otherwise.
     """
 
     x: np.ndarray
     y: np.ndarray
     flux: np.ndarray
     flags: np.ndarray
+    x_err: np.ndarray = None
+    y_err: np.ndarray = None
+    flux_err: np.ndarray = None
 
 
 def image_psf(epsf, oversample=4):
@@ -94,9 +100,8 @@ def fit_stars(frame, psf_model, x_init, y_init, flux_init, fit_shape=(9, 9), min
     psf_model : photutils.psf.ImagePSF
         From :func:`image_psf`.
     x_init, y_init, flux_init : array_like, shape (n,)
-        Initial positions and fluxes, one entry per star. Star finders do not
-        split a pair closer than ~3 px reliably (REFERENCE.md section 6), so
-        the caller supplies these.
+        Initial positions and fluxes, one entry per star (the study supplies
+        them, so that a fit's error does not depend on a finder's settings).
     fit_shape : tuple of int
         ``(ny, nx)`` box around each star whose pixels enter the fit (odd).
     min_separation : float or None
@@ -127,7 +132,7 @@ def fit_stars(frame, psf_model, x_init, y_init, flux_init, fit_shape=(9, 9), min
         grouper = SourceGrouper(min_separation=min_separation)
     phot = PSFPhotometry(psf_model, fit_shape, grouper=grouper, fitter_maxiters=maxiters)
     # photutils 3.0.0 reuses a cached flat model of an earlier ImagePSF in grouped fits
-    # (REFERENCE.md section 6): clear it before every fit.
+    # (docs/photometry.md): clear it before every fit.
     _components._FLAT_MODEL_CACHE.clear()
     with warnings.catch_warnings():
         # non-convergence is reported in `flags`; the warning would repeat it per frame
@@ -139,7 +144,7 @@ def fit_stars(frame, psf_model, x_init, y_init, flux_init, fit_shape=(9, 9), min
                    flags=np.asarray(table["flags"], int)[order])
 
 
-def detect_stars(frame, fwhm, threshold, finder="iraf"):
+def detect_stars(frame, fwhm, threshold, *, min_separation, finder="iraf"):
     """Find stars with photutils' ``IRAFStarFinder`` or ``DAOStarFinder``.
 
     Parameters
@@ -150,6 +155,12 @@ def detect_stars(frame, fwhm, threshold, finder="iraf"):
     threshold : float
         Detection threshold in frame units (for noise-free frames, a small
         fraction of the fainter star's peak).
+    min_separation : float
+        Detections closer than this [px] are merged into the brighter one.
+        Required: photutils 3.0's default (``None`` = 2.5 x ``fwhm``, 5.25 px
+        for the F405N PSF) merges every pair closer than that whatever the
+        image holds, so a detection rate measured at the default measures the
+        default, not the blend (the binary study sweeps it).
     finder : {"iraf", "dao"}
 
     Returns
@@ -159,10 +170,13 @@ def detect_stars(frame, fwhm, threshold, finder="iraf"):
     """
     from photutils.detection import DAOStarFinder, IRAFStarFinder
 
+    if min_separation is None or not np.isfinite(min_separation) or min_separation < 0:
+        raise ValueError(f"min_separation must be a number >= 0 [px], got {min_separation!r}")
     if finder == "iraf":
-        find = IRAFStarFinder(threshold, fwhm, roundness_range=(0.0, 1.0))
+        find = IRAFStarFinder(threshold, fwhm, roundness_range=(0.0, 1.0),
+                              min_separation=float(min_separation))
     elif finder == "dao":
-        find = DAOStarFinder(threshold, fwhm)
+        find = DAOStarFinder(threshold, fwhm, min_separation=float(min_separation))
     else:
         raise ValueError(f"unknown finder {finder!r}; choose 'iraf' or 'dao'")
     with warnings.catch_warnings():

@@ -90,7 +90,8 @@ def _fit_window(shape, x_init, y_init, fit_shape):
 
 
 def fit_stars_forward(frame, epsf, x_init, y_init, flux_init, law="donlon2018", geometry=None,
-                      edge="zero", fit_shape=(9, 9), oversample=4, xtol=1e-10, max_nfev=400):
+                      edge="zero", fit_shape=(9, 9), oversample=4, xtol=1e-10, max_nfev=400,
+                      read_noise=None, reweight=1):
     """Fit stars by least squares against a (coupled) model of the frame.
 
     Parameters
@@ -107,18 +108,37 @@ def fit_stars_forward(frame, epsf, x_init, y_init, flux_init, law="donlon2018", 
         ``law=None`` fits without coupling (a plain PSF fit).
     fit_shape : tuple of int
         Box around each initial position whose pixels enter the fit; the
-        fitted pixels are the union of the boxes (unweighted least squares,
-        as photutils without ``error``).
+        fitted pixels are the union of the boxes.
     oversample : int
     xtol : float
         Passed to :func:`scipy.optimize.least_squares` (also ``ftol``).
     max_nfev : int
-        Evaluation budget of the least-squares solver.
+        Evaluation budget of the least-squares solver (per pass).
+    read_noise : float or None
+        ``None``: unweighted least squares (as photutils without ``error``).
+        A number [e- RMS]: each pixel is weighted by ``1 / sigma`` with the
+        noise model ``sigma**2 = max(model, 0) + read_noise**2`` (Poisson +
+        read noise). The weights come from the *model*, not the data (data
+        weights pull a Poisson fit low), by iterative reweighting: an
+        unweighted first pass, then ``reweight`` passes each weighted by the
+        previous pass's model and held fixed during the pass.
+    reweight : int
+        Number of model-weighted passes (``read_noise`` given).
 
     Returns
     -------
     StarFit
-        ``flags`` is 0 when the solver converged, 1 otherwise.
+        ``flags`` is 0 when the solver converged, 1 otherwise. With
+        ``read_noise`` given, ``x_err``, ``y_err`` and ``flux_err`` are the
+        standard errors from the weighted Jacobian at the solution
+        (``(J^T J)^-1``, the noise model taken as exact).
+
+    Notes
+    -----
+    The noise model treats pixels as independent with Poisson variance equal
+    to their (coupled) expectation. Coupling mixes each pixel's shot noise with
+    its neighbours' and lowers the variance by about ``8 alpha`` (~10 %); weights
+    that are off by a constant factor per pixel cost efficiency, not bias.
     """
     from scipy.optimize import least_squares
 
@@ -132,15 +152,40 @@ def fit_stars_forward(frame, epsf, x_init, y_init, flux_init, law="donlon2018", 
     inside = window[box]
     data = frame[box][inside]
 
+    def sigma_of(expected):
+        return np.sqrt(np.clip(expected, 0.0, None) + float(read_noise) ** 2)
+
+    if read_noise is not None and not (np.isfinite(read_noise) and read_noise >= 0):
+        raise ValueError(f"read_noise must be None or a number >= 0, got {read_noise!r}")
+    weight = np.ones_like(data)
+
     def residual(params):
-        return model(params)[inside] - data
+        return (model(params)[inside] - data) * weight
 
     start = np.column_stack([x_init, y_init, flux_init]).ravel()
     # positions move by ~0.1 px, fluxes by their own size: scale steps accordingly
     scale = np.column_stack([np.full_like(x_init, 0.1), np.full_like(y_init, 0.1),
                              np.maximum(np.abs(flux_init), 1.0)]).ravel()
-    result = least_squares(residual, start, x_scale=scale, xtol=xtol, ftol=xtol, gtol=xtol,
-                           max_nfev=max_nfev, method="trf")
+    def solve(x0):
+        return least_squares(residual, x0, x_scale=scale, xtol=xtol, ftol=xtol, gtol=xtol,
+                             max_nfev=max_nfev, method="trf")
+
+    result = solve(start)  # unweighted: no weight depends on the noise
+    for _ in range(0 if read_noise is None else int(reweight)):
+        # weights from the previous pass's model, held fixed during this pass
+        weight = 1.0 / np.maximum(sigma_of(model(result.x)[inside]), 1e-12)
+        result = solve(result.x)
     params = result.x.reshape(-1, 3)
     flags = np.full(len(x_init), 0 if result.status > 0 else 1, dtype=int)
-    return StarFit(x=params[:, 0].copy(), y=params[:, 1].copy(), flux=params[:, 2].copy(), flags=flags)
+    errors = [None, None, None]
+    if read_noise is not None:
+        # the residuals are in units of sigma, so (J^T J)^-1 is the parameters' covariance
+        jac = result.jac
+        try:
+            cov = np.linalg.inv(jac.T @ jac)
+            std = np.sqrt(np.clip(np.diag(cov), 0.0, None)).reshape(-1, 3)
+            errors = [std[:, 0].copy(), std[:, 1].copy(), std[:, 2].copy()]
+        except np.linalg.LinAlgError:
+            flags[:] = 1
+    return StarFit(x=params[:, 0].copy(), y=params[:, 1].copy(), flux=params[:, 2].copy(),
+                   flags=flags, x_err=errors[0], y_err=errors[1], flux_err=errors[2])

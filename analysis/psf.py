@@ -71,7 +71,9 @@ __all__ = [
 ]
 
 PIXEL_SCALE = 0.063
-"""NIRCam long-wavelength detector pixel scale [arcsec/pixel] (REFERENCE.md section 5)."""
+"""NIRCam long-wavelength detector pixel scale [arcsec/pixel] (docs/analysis.md). The
+paper's FWHM table implies 0.065"/px (its arcsec column over its pixel column); pass
+``pixel_scale=0.065`` to :func:`jwst_f405n_psf` for that."""
 
 WAVELENGTH = 4.05e-6
 """F405N central wavelength [m]; the PSF is computed monochromatic at this wavelength."""
@@ -90,12 +92,12 @@ def _check_oversample(oversample):
 
 
 @functools.lru_cache(maxsize=8)
-def _jwst_cached(oversample, fov_pixels, wavelength):
+def _jwst_cached(oversample, fov_pixels, wavelength, pixel_scale=PIXEL_SCALE):
     import astropy.units as u
     import poppy
 
-    # REFERENCE.md section 5: 18 hexagonal segments in 2 rings, no central segment,
-    # 7 mm gaps, a 0.74 m secondary on three 0.1 m struts.
+    # a JWST-like pupil (docs/analysis.md): 18 hexagonal segments in 2 rings, no
+    # central segment, 7 mm gaps, a 0.74 m secondary on three 0.1 m struts.
     segments = poppy.MultiHexagonAperture(rings=2, flattoflat=1.32 * u.m, gap=0.007 * u.m,
                                           center=False)
     secondary = poppy.SecondaryObscuration(secondary_radius=0.37 * u.m, n_supports=3,
@@ -106,7 +108,7 @@ def _jwst_cached(oversample, fov_pixels, wavelength):
     osys.add_pupil(pupil)
     # An odd number of samples at pixelscale/oversample puts the optical axis on
     # the middle sample (poppy's MFT centres odd arrays on a sample).
-    osys.add_detector(pixelscale=PIXEL_SCALE / oversample,
+    osys.add_detector(pixelscale=pixel_scale / oversample,
                       fov_pixels=oversample * fov_pixels + 1, oversample=1)
     data = np.asarray(osys.calc_psf(wavelength)[0].data, dtype=np.float64)
     enclosed = float(data.sum())  # poppy normalises the entrance pupil to 1
@@ -115,7 +117,7 @@ def _jwst_cached(oversample, fov_pixels, wavelength):
     return data, enclosed
 
 
-def jwst_f405n_psf(oversample=4, fov_pixels=40, wavelength=WAVELENGTH):
+def jwst_f405n_psf(oversample=4, fov_pixels=40, wavelength=WAVELENGTH, pixel_scale=PIXEL_SCALE):
     """A JWST-like NIRCam F405N optical PSF computed offline with poppy.
 
     Parameters
@@ -127,6 +129,8 @@ def jwst_f405n_psf(oversample=4, fov_pixels=40, wavelength=WAVELENGTH):
         ``oversample * fov_pixels + 1``.
     wavelength : float
         Monochromatic wavelength [m] (F405N is 1 % wide).
+    pixel_scale : float
+        Detector pixel scale [arcsec/pixel].
 
     Returns
     -------
@@ -137,7 +141,7 @@ def jwst_f405n_psf(oversample=4, fov_pixels=40, wavelength=WAVELENGTH):
         0.94 for 40 pixels: the rest is in the far wings and spikes).
     """
     o = _check_oversample(oversample)
-    data, enclosed = _jwst_cached(o, int(fov_pixels), float(wavelength))
+    data, enclosed = _jwst_cached(o, int(fov_pixels), float(wavelength), float(pixel_scale))
     return data.copy(), enclosed
 
 
@@ -165,8 +169,10 @@ def read_psf_file(path, oversample=4, hdu=None):
     """Read an oversampled optical PSF from FITS (e.g. a WebbPSF/stpsf product).
 
     The HDU is ``hdu``, else the one named ``OVERSAMP`` (WebbPSF's oversampled
-    extension), else the first image HDU. Its ``OVERSAMP`` header keyword,
-    when present, must equal ``oversample``. An even-sided array (WebbPSF and
+    extension), else the first image HDU. Its detector sampling must equal
+    ``oversample``: the ``DET_SAMP`` keyword when present (poppy and WebbPSF
+    write the detector oversampling there), else ``OVERSAMP`` (which poppy
+    uses for the oversampling of its Fourier transforms, not of the pixels). An even-sided array (WebbPSF and
     poppy centre those between the four middle samples) is shifted by half a
     sample with a cubic spline and padded to an odd side so the source falls on
     the middle element. The result is renormalised to sum 1.
@@ -188,10 +194,10 @@ def read_psf_file(path, oversample=4, hdu=None):
         raise ValueError(f"{label}: a PSF must be a 2-D image, got shape {data.shape}")
     if not np.all(np.isfinite(data)):
         raise ValueError(f"{label}: PSF holds {np.sum(~np.isfinite(data))} non-finite values")
-    file_os = header.get("OVERSAMP", header.get("DET_SAMP", None))
-    if file_os is not None and int(file_os) != o:
-        raise ValueError(f"{label}: PSF is oversampled {file_os}x (OVERSAMP) but "
-                         f"oversample={o} was asked; pass oversample={int(file_os)}")
+    key = "DET_SAMP" if "DET_SAMP" in header else "OVERSAMP" if "OVERSAMP" in header else None
+    if key is not None and int(header[key]) != o:
+        raise ValueError(f"{label}: PSF samples each detector pixel {header[key]}x ({key}) but "
+                         f"oversample={o} was asked; pass oversample={int(header[key])}")
     if data.sum() <= 0:
         raise ValueError(f"{label}: PSF has no positive flux (sum {data.sum():.3g})")
     for axis in (0, 1):

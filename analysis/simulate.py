@@ -9,6 +9,10 @@
     couple(signal) + read noise (the same instance) -> coupled image
     decouple(coupled)         -> decoupled image
 
+The Poisson draw, the coupling and the read noise are the project's shared
+detector chain (:func:`ipc_taichi.detector.expose`): one seeded generator draws
+the Poisson variates first and the read noise next.
+
 The same read-noise instance is added to the truth and to the coupled frame,
 as the paper's text prescribes ("This distribution is added to the original
 scene image and the coupled copy"): ``coupled - truth`` is then IPC alone,
@@ -161,6 +165,8 @@ def simulate(sources, shape, exptime=EXPOSURE_TIME, psf="jwst_f405n", background
     SimulatedImages
     """
     import ipc_taichi
+    from ipc_taichi.detector import expose
+    from ipc_taichi.model import CouplingModel
 
     if isinstance(psf, str):
         psf = optical_psf(psf, oversample)
@@ -171,17 +177,18 @@ def simulate(sources, shape, exptime=EXPOSURE_TIME, psf="jwst_f405n", background
                         ("read_noise", read_noise)):
         if not (np.isfinite(value) and value >= 0):
             raise ValueError(f"{name} must be finite and >= 0, got {value!r}")
+    model = CouplingModel.resolve(law, geometry, edge)
     flux_map = np.full(shape, background * exptime)
     for s, f in zip(sources, fluxes):
         flux_map += point_source_image(psf, s.x, s.y, shape, f, oversample, sampling)
     scene = flux_map + dark * exptime
-    rng = np.random.default_rng(seed)
-    signal = rng.poisson(scene).astype(np.float64) if poisson else scene.copy()
-    noise = rng.normal(0.0, read_noise, shape) if read_noise > 0 else np.zeros(shape)
+    # the shared detector chain: Poisson draw, then read noise, from one generator
+    exposure = expose(scene, model, read_noise, np.random.default_rng(seed), shot_noise=poisson)
+    signal, noise = exposure.signal, exposure.noise
     truth = signal + noise
-    coupled = ipc_taichi.couple(signal, law=law, geometry=geometry, edge=edge) + noise
-    decoupled, dinfo = ipc_taichi.decouple(coupled, law=law, geometry=geometry, edge=edge,
-                                           max_iter=max_iter, tol=tol, full_output=True)
+    coupled = exposure.measured
+    decoupled, dinfo = ipc_taichi.decouple(coupled, model=model, max_iter=max_iter, tol=tol,
+                                           full_output=True)
     info = dict(exptime=exptime, background=background, dark=dark, read_noise=read_noise,
                 poisson=poisson, law=dinfo.law, edge=edge, seed=seed, zero_point=zero_point,
                 sampling=sampling, iterations=dinfo.iterations, converged=dinfo.converged)

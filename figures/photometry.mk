@@ -9,11 +9,11 @@ BINARY_DEPS := ../analysis/binary.py ../analysis/photometry.py ../analysis/photo
 
 FIGURES += $(BINARY_PNG)
 RESULT_PARTS += data/50_binary.results.md
-DATA_FILES += data/binary_grid.json data/binary_methods.json
+DATA_FILES += data/binary_grid.json data/binary_methods.json data/binary_fitter.json
 
 # The grid and the method study, 2 worker processes; per-task results are cached in
 # data/cache/binary_cache.npz, so a re-run only computes tasks whose inputs changed.
-data/binary_grid.json data/binary_methods.json &: scripts/binary_data.py $(BINARY_DEPS)
+data/binary_grid.json data/binary_methods.json data/binary_fitter.json &: scripts/binary_data.py $(BINARY_DEPS)
 	$(PYTHON) scripts/binary_data.py --workers 2
 
 binary_bright.png binary_mid.png binary_dim.png binary_noise.png &: scripts/plot_binary_grid.py data/binary_grid.json
@@ -22,7 +22,8 @@ binary_bright.png binary_mid.png binary_dim.png binary_noise.png &: scripts/plot
 binary_methods.png: scripts/plot_binary_methods.py data/binary_methods.json
 	$(PYTHON) scripts/plot_binary_methods.py
 
-data/50_binary.results.md: scripts/binary_results.py data/binary_grid.json data/binary_methods.json
+data/50_binary.results.md: scripts/binary_results.py data/binary_grid.json data/binary_methods.json \
+		data/binary_fitter.json
 	$(PYTHON) scripts/binary_results.py
 
 .PHONY: binary

@@ -142,7 +142,7 @@ def test_jwst_psf_properties():
     assert psf.shape == (161, 161)
     assert psf.sum() == pytest.approx(1.0, rel=1e-12)
     assert np.unravel_index(psf.argmax(), psf.shape) == (c, c)
-    # poppy's radial FWHM: REFERENCE.md gives 2.080 px on poppy's even 4x grid
+    # poppy's radial FWHM is 2.079 px on poppy's even 4x grid (docs/analysis.md), 2.075 on ours
     assert fwhm_radial(psf, O) == pytest.approx(2.08, abs=0.01)
 
 
@@ -173,3 +173,20 @@ def test_read_psf_file_even_array_recentred(tmp_path):
         read_psf_file(str(path), 2)
     with pytest.raises(ValueError, match="no such file"):
         optical_psf(str(tmp_path / "missing.fits"))
+
+
+def test_read_psf_file_prefers_det_samp_over_fft_oversamp(tmp_path):
+    """poppy writes OVERSAMP (its FFT oversampling) and DET_SAMP (samples per detector
+    pixel); a valid 4x file with OVERSAMP = 2 must load at oversample=4."""
+    from astropy.io import fits
+
+    t = (np.arange(65) - 32) / O
+    g = np.exp(-0.5 * (t / 1.2) ** 2)
+    hdu = fits.PrimaryHDU(np.outer(g, g))
+    hdu.header["OVERSAMP"] = 2
+    hdu.header["DET_SAMP"] = 4
+    path = tmp_path / "poppy.fits"
+    fits.HDUList([hdu]).writeto(path)
+    assert read_psf_file(str(path), 4).shape == (65, 65)
+    with pytest.raises(ValueError, match=r"4x \(DET_SAMP\).*pass oversample=4"):
+        read_psf_file(str(path), 2)

@@ -91,10 +91,32 @@ def test_pair_errors_arithmetic():
 
 def test_detect_stars_splits_a_wide_pair_only(psf):
     wide = pair_scene(psf, 12.0, 12.0, 20.0, BRIGHT, BRIGHT / 4)
-    x, y = detect_stars(wide, fwhm=2.1, threshold=1000.0)
+    x, y = detect_stars(wide, fwhm=2.1, threshold=1000.0, min_separation=1.0)
     for xt in (12.0, 32.0):
         assert np.min(np.hypot(x - xt, y - 12.0)) < 0.1
-    x, y = detect_stars(np.zeros((20, 20)), fwhm=2.1, threshold=1.0)
+    x, y = detect_stars(np.zeros((20, 20)), fwhm=2.1, threshold=1.0, min_separation=1.0)
     assert x.size == 0 and y.size == 0
     with pytest.raises(ValueError, match="unknown finder"):
-        detect_stars(wide, 2.1, 1.0, finder="sextractor")
+        detect_stars(wide, 2.1, 1.0, min_separation=1.0, finder="sextractor")
+    with pytest.raises(TypeError):
+        detect_stars(wide, 2.1, 1.0)          # min_separation must be chosen explicitly
+    with pytest.raises(ValueError, match="min_separation"):
+        detect_stars(wide, 2.1, 1.0, min_separation=None)
+
+
+@pytest.mark.parametrize("finder", ["iraf", "dao"])
+def test_close_pair_is_split_or_merged_by_min_separation_alone(psf, finder):
+    """A noise-free coupled 1:1 pair 3 px apart: found with min_separation = 1 px,
+    merged at photutils' default 2.5 x FWHM = 5.25 px (a setting, not IPC)."""
+    import ipc_taichi
+
+    x1, y1 = 12.0, 12.0
+    frame = ipc_taichi.couple(pair_scene(psf, x1, y1, 3.0, BRIGHT, BRIGHT))
+    threshold = 0.02 * frame.max()
+
+    def found(min_sep):
+        x, y = detect_stars(frame, 2.1, threshold, min_separation=min_sep, finder=finder)
+        return sum(bool(np.any(np.hypot(x - xt, y - y1) < 0.5)) for xt in (x1, x1 + 3.0))
+
+    assert found(1.0) == 2
+    assert found(5.25) <= 1

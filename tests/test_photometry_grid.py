@@ -60,8 +60,17 @@ def test_quick_grid_truth_exact_and_decoupled_within_paper_targets(quick_grid):
     row = _row(summary, 3.0, False)
     assert row["coupled_optical"]["separation_error_mpix"][0] < -5.0
     assert row["coupled_optical"]["flux_error_pct"][0][0] < -0.5
-    # a finder does not split the 3 px pair but finds both stars 20 px apart
-    assert row["detected"] < 1.0 and _row(summary, 20.0, False)["detected"] == 1.0
+    # detection at an explicit min_separation: at photutils' default (2.5 FWHM = 5.25 px)
+    # the 3 px pair is merged by the setting; at 1 px the finder splits most of them,
+    # and IPC costs nothing against the truth frame; 20 px apart both are always found
+    det = row["detected"]
+    assert det["coupled"]["5.25"] <= 0.55 < 0.8 <= det["coupled"]["1"]
+    assert det["coupled"]["1"] == pytest.approx(det["truth"]["1"], abs=0.07)
+    assert all(v == 1.0 for v in _row(summary, 20.0, False)["detected"]["coupled"].values())
+    assert _row(summary, 3.0, True)["detected"] is None      # studied noise-free only
+    # the abstract's scenario: the bright field star's coupled PSF on this (bright) pair is
+    # the pair's own coupled PSF, so the two fits agree
+    assert row["coupled_brightpsf"]["flux_error_pct"] == row["coupled"]["flux_error_pct"]
     # noise present: a spread over offsets and realisations, no longer exact
     assert _row(summary, 3.0, True)["truth"]["flux_error_pct"][1][1] > 0.01
 

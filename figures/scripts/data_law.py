@@ -40,7 +40,7 @@ Data: `data/10_law.npz` (`figures/scripts/data_law.py`).
 {rows}
 
 The default law reproduces the paper's table; the equation as printed does not
-(REFERENCE.md section 1). Over 0..60000 the default law's minimum is
+(docs/analysis.md). Over 0..60000 the default law's minimum is
 {minimum:.3f} % and its maximum 1.450 %; the abstract's "0.68 %" minimum matches the
 printed form better ({minimum_printed:.3f} %).
 """)

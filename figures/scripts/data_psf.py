@@ -15,8 +15,8 @@ import numpy as np
 from _common import progress, save_npz, write_results
 
 from analysis.fwhm import fwhm_radial, fwhm_spline
-from analysis.psf import effective_psf, optical_psf, point_source_image
-from ipc_taichi import get_law
+from analysis.psf import effective_psf, jwst_f405n_psf, optical_psf, point_source_image
+from ipc_taichi import Geometry, get_law
 from analysis.simulate import EXPOSURE_TIME, MAGNITUDES, ZERO_POINT, flux_from_mag
 
 O = 4
@@ -25,6 +25,65 @@ LEVELS = ("bright", "mid", "dim")
 STATIC = "constant:0.08"
 CROP = 10  # detector pixels each side kept in the .npz
 PAPER_FWHM = {"truth": 2.080, "dim": 2.186, "mid": 2.180, "bright": 2.169, "static8": 2.249}
+SCALES = (0.063, 0.065)
+# the paper's 8 % case moves ~35 % of the charge out of the central pixel: 4 x 8 % to the
+# sides leaves ~3 % for the 4 diagonals, 0.75 % each = 0.09375 x 8 %
+DIAGONAL = Geometry.terms(diagonal=0.75 / 8)
+GRID_ROWS = ("truth", "dim", "mid", "bright", "static8", "static8_diag")
+ESTIMATORS = (("point", "radial"), ("point", "spline"), ("integrated", "spline"),
+              ("integrated", "radial"))
+
+
+def fwhm_grid(fluxes):
+    """FWHM of each paper row for pixel scale x detector model x estimator x 8 % kernel."""
+    out, keep = {}, {}
+    for scale in SCALES:
+        psf = jwst_f405n_psf(O, pixel_scale=scale)[0]
+        for sampling in SAMPLINGS:
+            for row in GRID_ROWS:
+                if row == "truth":
+                    epsf = effective_psf(psf, 1.0, "truth", oversample=O, sampling=sampling)
+                elif row.startswith("static8"):
+                    epsf = effective_psf(psf, 1.0, "coupled", law=STATIC, oversample=O,
+                                         sampling=sampling,
+                                         geometry=DIAGONAL if row.endswith("diag") else None)
+                else:
+                    epsf = effective_psf(psf, fluxes[row], "coupled", oversample=O,
+                                         sampling=sampling)
+                out[(scale, sampling, "spline", row)] = fwhm_spline(epsf, O).mean
+                out[(scale, sampling, "radial", row)] = fwhm_radial(epsf, O)
+                if scale == SCALES[0] and row == "static8_diag":
+                    keep[f"{sampling}_{row}"] = crop(epsf)
+    return out, keep
+
+
+def grid_text(grid):
+    """Markdown: the grid, and which cell comes nearest to each paper row."""
+    head = " | ".join(f'{sc}"/px {smp[:5]}. {est}' for sc in SCALES for smp, est in ESTIMATORS)
+    lines = [f"| PSF | paper [px] | {head} |", "|---|---|" + "---|" * (len(SCALES) * len(ESTIMATORS))]
+    paper = dict(PAPER_FWHM, static8_diag=PAPER_FWHM["static8"])
+    label = {"truth": "optical / truth", "static8": "static 8 %, 4 neighbours",
+             "static8_diag": "static 8 %, + diagonals 0.75 %"}
+    best = {}
+    for row in GRID_ROWS:
+        cells = []
+        for sc in SCALES:
+            for smp, est in ESTIMATORS:
+                v = grid[(sc, smp, est, row)]
+                cells.append(f"{v:.3f}")
+                d = abs(v - paper[row])
+                if row not in best or d < best[row][0]:
+                    best[row] = (d, sc, smp, est, v)
+        lines.append(f"| {label.get(row, row + ', coupled')} | {paper[row]:.3f} | " + " | ".join(cells) + " |")
+    lines += ["", "| paper row | nearest cell | ours | difference [px] | paper broadening | "
+              "that cell's broadening |", "|---|---|---|---|---|---|"]
+    for row in GRID_ROWS:
+        d, sc, smp, est, v = best[row]
+        pb = 100 * (paper[row] / PAPER_FWHM["truth"] - 1)
+        ob = 100 * (v / grid[(sc, smp, est, "truth")] - 1) if row != "truth" else 0.0
+        lines.append(f"| {label.get(row, row)} ({paper[row]:.3f}) | {sc}\"/px, {smp}, {est} | "
+                     f"{v:.3f} | {d:.3f} | {pb:.1f} % | {ob:.2f} % |")
+    return "\n".join(lines), best
 
 
 def crop(epsf):
@@ -54,6 +113,20 @@ def main():
         arrays[f"{sampling}_{name}"] = crop(epsf)
     images = {k: point_source_image(psf, 20, 20, (41, 41), v, O) for k, v in fluxes.items()}
     central = {k: float(im[20, 20]) for k, im in images.items()}
+    central_point = {k: float(point_source_image(psf, 20, 20, (41, 41), v, O, "point")[20, 20])
+                     for k, v in fluxes.items()}
+    grid, kept = fwhm_grid(fluxes)
+    arrays.update(kept)
+    grid_table, best = grid_text(grid)
+    widest = max(100 * (grid[k[:3] + ("dim",)] / grid[k[:3] + ("truth",)] - 1) for k in grid)
+    cell = best["truth"][1:4]
+    same = {row: grid[cell + (row,)] for row in GRID_ROWS}
+    # the one cell (and 8 % kernel) that fits all five paper rows best, by its worst row
+    single = min((max(abs(grid[(sc, smp, est, row)] - PAPER_FWHM[row.replace("_diag", "")])
+                      for row in ("truth", "dim", "mid", "bright", k8)),
+                  sc, smp, est, "with diagonals" if k8.endswith("diag") else "4 neighbours")
+                 for sc in SCALES for smp, est in ESTIMATORS for k8 in ("static8", "static8_diag"))
+    gkeys = sorted(grid)
     # alpha between the central pixel and its brightest neighbour, per source
     law = get_law("donlon2018")
     alpha_core = {k: 100 * float(law.alpha(im[20, 20], im[20, 21])) for k, im in images.items()}
@@ -66,7 +139,9 @@ def main():
              fwhm_y=np.array([meas[k]["y"] for k in keys]),
              fwhm_radial=np.array([meas[k]["radial"] for k in keys]),
              peak=np.array([meas[k]["peak"] for k in keys]),
-             fluxes=np.array([fluxes[k] for k in LEVELS]), levels=np.array(LEVELS))
+             fluxes=np.array([fluxes[k] for k in LEVELS]), levels=np.array(LEVELS),
+             grid_keys=np.array(["|".join(map(str, k)) for k in gkeys]),
+             grid_fwhm=np.array([grid[k] for k in gkeys]))
 
     def fw(s, n):
         return meas[(s, n)]["mean"]
@@ -110,7 +185,6 @@ def main():
            / meas[(s, "truth")]["peak"] for s in SAMPLINGS}
     dec_err = max(abs(fw(s, lv + "_decoupled") - fw(s, "truth")) for s in SAMPLINGS for lv in LEVELS)
     xy = max(abs(m["x"] - m["y"]) for m in meas.values())
-    close = max(abs(fw("point", lv + "_coupled") - PAPER_FWHM[lv]) for lv in LEVELS)
     order = all(fw(s, "dim_coupled") > fw(s, "mid_coupled") > fw(s, "bright_coupled") > fw(s, "truth")
                 for s in SAMPLINGS)
     src = "\n".join(f"| {lv} | {MAGNITUDES[lv]} | {fluxes[lv]:.4g} | {central[lv]:.0f} |"
@@ -122,7 +196,7 @@ Figures: `psf_3d.png` (paper Fig. 3.3.1), `psf_cross_section.png` (3.3.2),
 `psf_difference.png` (3.3.3), `psf_static8.png` (5.0.1).
 Data: `data/40_psf.npz` (`figures/scripts/data_psf.py`).
 
-Optical PSF: JWST-like F405N pupil computed offline with poppy (REFERENCE.md section 5),
+Optical PSF: JWST-like F405N pupil computed offline with poppy (described in `docs/analysis.md`),
 4.05 um monochromatic, 0.063"/px, 4x oversampled, 40x40 px field (it holds 94.6 % of the
 light; normalised to 1 there). Effective PSFs: the source at the 16 quarter-pixel offsets,
 each detector image coupled with `donlon2018` (4 nearest neighbours) at its real signal
@@ -148,7 +222,7 @@ azimuthally averaged radial profile, as an independent check.
 |---|---|---|---|---|---|
 {table1}
 
-(REFERENCE.md quotes 2.080 px from `poppy.measure_fwhm` on poppy's own even 4x grid; on
+(`poppy.measure_fwhm` on poppy's own even 4x grid gives 2.079 px for this optical PSF; on
 our odd grid, centred on a sample, it gives {optical_radial:.3f} px; the spline width of the
 same optical PSF is {optical.mean:.3f} px.)
 
@@ -162,28 +236,47 @@ Bright vs dim peak difference (relative to the truth peak): paper ~0.15 %; ours
 Checks: decoupled FWHM equals truth to {dec_err:.1e} px (required: 0.001 px);
 dim > mid > bright > truth in both detector models: {order}.
 
-**Where ours differ, and why.** (1) The paper's 2.080 px for the WebbPSF is the
-radial-profile FWHM (`poppy.measure_fwhm`, REFERENCE.md section 5), but a cross section
-through the peak of the same PSF is {optical.mean:.3f} px wide: the JWST PSF is hexagonal,
-not round. Measured the same way as the truth, our point-sampled coupled PSFs
-({fw('point', 'bright_coupled'):.3f} / {fw('point', 'mid_coupled'):.3f} /
-{fw('point', 'dim_coupled'):.3f} px for bright / mid / dim) lie within {close:.3f} px of the
-paper's 2.169 / 2.180 / 2.186, so the paper's 4.3-5.1 % broadening is consistent with
-mostly a change of estimator between its first row and the others; IPC with this law
-broadens the PSF by {broad('point', 'bright_coupled'):.2f}-{broad('point', 'dim_coupled'):.2f} %
-(point-sampled) or {broad('integrated', 'bright_coupled'):.2f}-{broad('integrated', 'dim_coupled'):.2f} %
-(pixel-integrated), dim more than bright as the paper says. (2) Pixel integration alone
-widens the PSF by {fw('integrated', 'truth') - fw('point', 'truth'):.3f} px; the paper's
-model omits it. (3) The static 8 % kernel gives {fw('point', 'static8'):.3f} px by our
-spline (paper 2.249; our radial estimate {meas[('point', 'static8')]['radial']:.3f});
-we do not know how the paper's value was measured. (4) Our bright peak drops by
-{drop('point', 'bright_coupled'):.2f} %, inside the paper's 1.2-1.4 %, but our dim peak drops
-by {drop('point', 'dim_coupled'):.2f} %, so bright and dim differ by about {bvd['point']:.1f} %, not 0.15 %.
-With this law, alpha between the central pixel and its neighbour is
+**Which setting gives the paper's FWHM numbers? A grid of the alternatives.** The paper's
+table gives arcsec beside pixels, and every row's ratio is 0.0650"/px, not the 0.063"/px
+used above; its text does not say how it measured a FWHM. So each paper row is compared
+with every cell of: pixel scale (0.063 or 0.065"/px, the same pupil) x detector model
+(point-sampled, the paper's Eq. 10, or pixel-integrated) x estimator (`radial`:
+`poppy.measure_fwhm`; `spline`: cubic splines through the peak's row and column), and for
+the static 8 % case the kernel with 4 neighbours only or with 0.75 % to each diagonal (the
+paper says ~35 % of the charge leaves the central pixel: 4 x 8 % = 32 %, so ~3 % goes to
+the diagonals). Fluxes as above at both scales.
+
+{grid_table}
+
+What the grid says, as strongly as it can: (1) the paper's 2.080 px is matched within
+{best['truth'][0]:.3f} px by the cell {best['truth'][1]}"/px, {best['truth'][2]}, {best['truth'][3]}; at the
+paper's own implied scale (0.065"/px) no cell gives 2.080 (point radial
+{grid[(0.065, 'point', 'radial', 'truth')]:.3f}, point spline {grid[(0.065, 'point', 'spline', 'truth')]:.3f},
+integrated spline {grid[(0.065, 'integrated', 'spline', 'truth')]:.3f}). (2) In that same cell the
+coupled rows are {same['bright']:.3f} / {same['mid']:.3f} / {same['dim']:.3f} px (paper 2.169 / 2.180 / 2.186)
+and the static 8 % row is {same['static8']:.3f} px with 4 neighbours, {same['static8_diag']:.3f} px with
+the diagonals (paper 2.249): with the diagonals the 8 % row comes within
+{abs(same['static8_diag'] - 2.249):.3f} px, the IPC rows stay {min(PAPER_FWHM[r] - same[r] for r in LEVELS):.3f}-{max(PAPER_FWHM[r] - same[r] for r in LEVELS):.3f} px short. The single cell that
+fits all five paper rows best ({single[1]}"/px, {single[2]}, {single[3]}, {single[4]}) still misses
+one row by {single[0]:.3f} px. (3) No cell reproduces the paper's broadening: with this law the
+widest broadening in any cell is {widest:.2f} % (the dim source), where the paper has 4.3-5.1 %.
+The paper's coupled rows sit near cells of *another* estimator or scale than its truth row
+(the table above), but nothing in the paper says it changed estimator between rows: that
+is a hypothesis this grid cannot confirm (an earlier version of this file stated it as
+the explanation; that was too strong). The static 8 % row alone is matched by several
+cells, with and without diagonals, so it does not decide the kernel either.
+(4) The abstract's 2.080 -> 2.186, the 1.2-1.4 % peak drop for all
+sources and the 0.15 % bright-versus-dim difference stay unreproduced: our bright peak drops
+by {drop('point', 'bright_coupled'):.2f} %, our dim peak by {drop('point', 'dim_coupled'):.2f} % (point-sampled);
+with this law alpha between the central pixel and its neighbour is
 {alpha_core['bright']:.2f} % for the bright source and {alpha_core['dim']:.2f} % for the dim one
-(central pixels {central['bright']:.0f} and {central['dim']:.0f} counts), and the peak drop
-follows alpha; we could not reproduce the paper's 0.15 %, and the paper does not give its
-source fluxes in counts.
+(central pixels {central['bright']:.0f} and {central['dim']:.0f} e-), and the peak drop follows alpha.
+The paper does not give its sources in counts, so a different flux scale is one open
+alternative. (5) Pixel integration alone widens the PSF by
+{fw('integrated', 'truth') - fw('point', 'truth'):.3f} px (spline, 0.063"/px); the paper's model omits it.
+(6) The zero point is set for the pixel-integrated detector (60000 e- in the bright star's
+central pixel); in the point-sampled model the same star puts {central_point['bright']:.0f} e- there,
+above the 60000 e- the zero point assumes.
 """)
 
 

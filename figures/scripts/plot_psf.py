@@ -2,8 +2,10 @@
 
 Usage: plot_psf.py FIGURE.png with FIGURE one of psf_3d, psf_cross_section,
 psf_difference, psf_static8. Cross sections are rows through the peak of the
-4x-sampled effective PSF of the pixel-integrated detector, for a unit-flux
-source: the value is the fraction of the source's light in a pixel centred there.
+4x-sampled effective PSF of the paper's point-sampled detector (its Eq. 10, the
+model the FWHM table compares), for a unit-flux source: the value is the
+fraction of the source's light in a pixel centred there. Nothing in these
+figures is tuned.
 """
 
 import sys
@@ -15,7 +17,8 @@ from _common import load_npz, pyplot, savefig
 from analysis.fwhm import fwhm_spline
 from analysis.psf import continuous_psf
 
-MODEL = "integrated"
+MODEL = "point"
+PAPER = {"truth": 2.080, "bright": 2.169, "mid": 2.180, "dim": 2.186, "static8": 2.249}
 COLORS = {"bright": "C0", "mid": "C2", "dim": "C3"}
 
 
@@ -59,7 +62,7 @@ def psf_3d(d, o, plt):
     ax.set_zlabel("fraction of flux per pixel")
     ax.view_init(elev=25, azim=-60)
     ax.set_title("Bicubic-spline PSF from quarter-pixel offsets, decoupled bright source\n"
-                 "(JWST-like F405N, pixel-integrated; paper Fig. 3.3.1)")
+                 "(JWST-like F405N, point-sampled as the paper; paper Fig. 3.3.1)")
     return fig
 
 
@@ -70,11 +73,12 @@ def psf_cross_section(d, o, plt):
     fig, ax = plt.subplots(figsize=(6.8, 4.4))
     w = fwhm_spline(truth, o).mean
     inset = ax.inset_axes([0.70, 0.42, 0.28, 0.53])
-    curves = [("k", 2, f"truth = decoupled (FWHM {w:.3f} px)", truth)]
+    curves = [("k", 2, f"truth = decoupled (FWHM {w:.3f} px; paper 2.080)", truth)]
     for lv in ("bright", "mid", "dim"):
         e = unit(d[f"{MODEL}_{lv}_coupled"], o)
         curves.append((COLORS[lv], 1.2,
-                       f"{lv} coupled, {fl[lv]:.3g} counts (FWHM {fwhm_spline(e, o).mean:.3f} px)", e))
+                       f"{lv} coupled, {fl[lv]:.3g} e- (FWHM {fwhm_spline(e, o).mean:.3f} px; "
+                       f"paper {PAPER[lv]:.3f})", e))
     for color, lw, label, e in curves:
         t, v = smooth(x, row(e))
         ax.plot(t, v, "-", color=color, lw=lw, label=label)
@@ -88,7 +92,8 @@ def psf_cross_section(d, o, plt):
     inset.set_title("peak, zoomed", fontsize=8)
     inset.tick_params(labelsize=7)
     ax.set_title("PSF cross section through the peak, with signal-dependent IPC\n"
-                 "(JWST-like F405N, pixel-integrated, 10 ks; paper Fig. 3.3.2)")
+                 "(JWST-like F405N, point-sampled as the paper's Eq. 10, 0.063\"/px, 10 ks; "
+                 "FWHM: spline through the peak; paper Fig. 3.3.2)", fontsize=9.5)
     return fig
 
 
@@ -110,25 +115,31 @@ def psf_difference(d, o, plt):
     ax.set_ylabel("difference [% of the true peak]")
     ax.legend(fontsize=8)
     ax.set_title("IPC lowers the PSF peak and raises its flanks, more for dim sources\n"
-                 "(cross section through the peak, pixel-integrated, 10 ks; paper Fig. 3.3.3)")
+                 "(cross section through the peak, point-sampled, 10 ks; paper Fig. 3.3.3)")
     return fig
 
 
 def psf_static8(d, o, plt):
     truth = unit(d[f"{MODEL}_truth"], o)
     static = unit(d[f"{MODEL}_static8"], o)
+    diag = unit(d[f"{MODEL}_static8_diag"], o)
     x = offsets(truth, o)
     fig, ax = plt.subplots(figsize=(6.8, 4.2))
     ax.plot(*smooth(x, row(truth)), "k-", lw=2,
-            label=f"no IPC (FWHM {fwhm_spline(truth, o).mean:.3f} px)")
-    ax.plot(*smooth(x, row(static)), "C1-", lw=2,
-            label=f"static $\\alpha$ = 8 % (FWHM {fwhm_spline(static, o).mean:.3f} px)")
+            label=f"no IPC (FWHM {fwhm_spline(truth, o).mean:.3f} px; paper 2.080)")
+    ax.plot(*smooth(x, row(static)), "C1--", lw=1.5,
+            label=f"static $\\alpha$ = 8 %, 4 neighbours (FWHM {fwhm_spline(static, o).mean:.3f} px)")
+    ax.plot(*smooth(x, row(diag)), "C1-", lw=2,
+            label=f"8 % + 0.75 % to each diagonal (FWHM {fwhm_spline(diag, o).mean:.3f} px; "
+                  "paper 2.249)")
     ax.set_xlim(-4, 4)
     ax.set_xlabel("x offset from the source [detector px]")
     ax.set_ylabel("fraction of flux per pixel")
-    ax.legend()
-    ax.set_title("PSF cross section with a static H4RG-10-like IPC, $\\alpha$ = 8 % "
-                 "(4 neighbours)\n(JWST-like F405N, pixel-integrated; paper Fig. 5.0.1)")
+    ax.set_title("PSF cross section with a static H4RG-10-like IPC, $\\alpha$ = 8 %\n"
+                 "(35 % of the charge leaves the centre with the diagonals, as the paper says;\n"
+                 "JWST-like F405N, point-sampled, 0.063\"/px; FWHM by spline; paper Fig. 5.0.1)",
+                 fontsize=9.5)
+    ax.legend(fontsize=8)
     return fig
 
 
