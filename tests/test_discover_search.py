@@ -164,3 +164,27 @@ def test_deviance_with_a_shared_response_map_is_the_gaussian_likelihood(rng):
             expect += -2 * multivariate_normal(np.zeros(w.sum()), cov).logpdf(r[w, y, x])
     expect -= valid.sum() * np.log(2 * np.pi)  # the constant deviance() leaves out
     assert deviance([r], [var], [mean], [valid], u) == pytest.approx(expect, rel=1e-10)
+
+
+def test_an_effect_that_fell_back_to_off_is_pruned(tmp_path):
+    # an earlier effect whose parameter a later refit sent back to "off" (here
+    # diffusion at sigma 0, beside the diagonal coupling that made the data)
+    # costs nothing to remove: prune() drops it and keeps the effect the data need
+    from ipc_taichi.discover import read_lab
+    from ipc_taichi.discover.search import Frames, prune
+
+    path = _make(tmp_path, {"diagonal_ipc": 0.0018}, seed=5)
+    frames = Frames.from_lab(read_lab(path))
+    truth = read_lab(path).model().with_effects({"diagonal_ipc": {"alpha_diag": 0.0018}})
+    stale = truth.with_effects({"charge_diffusion": {"sigma_px": 0.0}})
+    model, dropped = prune(frames, stale)
+    assert sorted(model.effects) == ["diagonal_ipc"]
+    [(name, params, worth)] = dropped
+    assert name == "charge_diffusion" and params == {"sigma_px": 0.0}
+    # nothing gained, one parameter paid for: delta BIC = -ln n
+    assert worth == pytest.approx(-np.log(frames.n), abs=1e-6)
+    # a real effect is kept even when nothing protects it
+    assert prune(frames, truth)[1] == []
+    # and one the data do not need, though not at "off", is dropped too
+    weak = truth.with_effects({"dark_current": {"dark_e": 0.05}})
+    assert [d[0] for d in prune(frames, weak)[1]] == ["dark_current"]

@@ -194,8 +194,11 @@ SEPARATION = {
         "brighter-fatter conserves charge (neighbours gain what the peak loses) and leaves "
         "flat fields flat; non-linearity loses signal, flat patches included",
     frozenset({"brighter_fatter", "signal_dependent_ipc"}):
-        "both change the neighbour fraction with signal; brighter-fatter acts before shot "
-        "noise (the neighbours' variance grows) and on the pixel's own charge",
+        "both change the neighbour fraction with signal; brighter-fatter acting on the "
+        "arriving charge, before shot noise, makes the neighbours' variance grow with what "
+        "they receive, a coupling does not (compare evidence_with_variance: positive for "
+        "brighter-fatter when it acts before shot noise; a flow computed from the collected "
+        "charge is, in its noise, a coupling)",
     frozenset({"signal_dependent_ipc", "anisotropic_ipc"}):
         "a signal-dependent law changes the coupling with signal in both directions; "
         "anisotropy changes it by direction at every signal",

@@ -30,6 +30,9 @@ Procedure (:func:`discover`)
    :data:`MIN_EXPLAINED_FRACTION` of the gap's excess over the floor (when
    that excess is significant): an effect that explains little of a large
    excess is a symptom of something the vocabulary lacks, not a finding.
+   After that refit, an earlier effect whose removal no longer costs
+   evidence (:func:`prune`: its parameters fell back to "off", or its work
+   is now done by the newcomer) is dropped and recorded under ``pruned``.
 5. The loop repeats until no candidate qualifies; the noise floor is then
    the final model simulated :data:`FLOOR_SIMULATIONS` times with fresh
    noise. ``complete`` is true when the final gap lies within
@@ -42,7 +45,7 @@ whitened residuals, inflated by the reduced chi-square when it exceeds 1
 """
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.optimize import least_squares, minimize
@@ -55,7 +58,7 @@ from .effects import DEGENERATE, EFFECTS, SEPARATION, contradiction, derived_par
 from .labdata import LabData, read_lab
 from .model import CHAIN_ORDER, DetectorModel, is_constant_law
 
-__all__ = ["discover", "Discovery", "Frames", "fit_parameters", "deviance",
+__all__ = ["discover", "Discovery", "Frames", "fit_parameters", "deviance", "prune",
            "describe_unexplained", "EVIDENCE_THRESHOLD",
            "MIN_EXPLAINED_FRACTION", "COMPLETE_SIGMAS", "FLOOR_SIMULATIONS", "MAX_STEPS"]
 
@@ -446,6 +449,46 @@ def _refit_all(frames, model, passes=2):
     return FitResult(model, results[-1].chi2, values, errors, cov, keys)
 
 
+def prune(frames, model, threshold=EVIDENCE_THRESHOLD, keep=()):
+    """Drop the effects whose removal no longer costs evidence.
+
+    After a later effect joins and every parameter is refitted, an earlier
+    one may fall back to "off" (its parameters at their "off" values) or
+    to a value that the data no longer need: its work is now done by the
+    newcomer. For each effect of ``model`` not in ``keep``, the Gaussian
+    likelihood (:meth:`Frames.deviance`, mean and variance recomputed) of
+    the model without it is compared with the full model's: it is dropped
+    when ``delta BIC = -2 delta lnL - k ln n`` of keeping it is at or below
+    ``threshold``, the same bar an effect must pass to be added. The
+    weakest is dropped first and the rest are judged again.
+
+    Returns
+    -------
+    (DetectorModel, list)
+        The pruned model and ``[(effect, params, delta BIC of keeping it)]``.
+    """
+    ln_n = math.log(frames.n)
+    pruned = []
+    while True:
+        dev_full = frames.deviance(model, frames.predict(model))
+        worth = {}
+        for name in model.effects:
+            if name in keep:
+                continue
+            without = replace(model, effects={e: dict(p) for e, p in model.effects.items()
+                                              if e != name})
+            k = len(EFFECTS[name].params)
+            worth[name] = frames.deviance(without, frames.predict(without)) - dev_full - k * ln_n
+        if not worth:
+            return model, pruned
+        weakest = min(worth, key=worth.get)
+        if worth[weakest] > threshold:
+            return model, pruned
+        pruned.append((weakest, dict(model.effects[weakest]), float(worth[weakest])))
+        model = replace(model, effects={e: dict(p) for e, p in model.effects.items()
+                                        if e != weakest})
+
+
 def _params_report(result, effect, readnoise=None):
     keys = [k for k in result.keys if k[0] == effect]
     params = {n: result.values[(e, n)] for e, n in keys}
@@ -514,13 +557,38 @@ def _json_diag(d):
     return out
 
 
-def describe_unexplained(d, rejected=()):
+# What SCENE cannot tell the model, per effect in the final model: SCENE holds
+# each pixel's integrated charge, not how the light lies within the pixel, and
+# these effects move charge by less than a pixel (measured in docs/discover.md).
+SUBPIXEL_LIMITS = {
+    "misregistration":
+        "the fitted shift moves SCENE by interpolating its pixel values, exact only for "
+        "light smooth on the pixel scale; how the light lies within a pixel is not in "
+        "SCENE (a star and a uniform 1x1 source of the same pixel values shift "
+        "differently), so without the sources' profiles no interpolation shifts stars "
+        "sharper than about 2.2 px FWHM, single-pixel events and sharp edges exactly (a "
+        "0.3 px shift of a 1.8 px FWHM star leaves 1.8 % of its peak with a spline and "
+        "with a band-limited shift alike): what remains here may be that limit of the "
+        "data, not a missing effect",
+    "charge_diffusion":
+        "the diffusion model spreads charge generated uniformly across each pixel (right "
+        "for single-pixel events and flat areas); light that peaks inside its pixel (a "
+        "star) keeps more of it, so where the data's diffusion starts from the photons' "
+        "true positions, star centres are left above the model (sigma 0.22 px, a 1.8 px "
+        "FWHM star: the model's peak 11 % low) and SCENE cannot say which picture holds "
+        "for which pixel: what remains at star centres may be that limit of the data",
+}
+
+
+def describe_unexplained(d, rejected=(), effects=()):
     """Words a detector scientist can act on for what the final model leaves.
 
     ``d`` is the final diagnostics (with ``floor_chi2_vs_signal``, the
     floor simulations' chi-square per signal bin); ``rejected`` the
-    candidates that were fitted but not named, ``(effect, why)``. Only
-    patterns that stand out at :data:`UNEXPLAINED_Z` sigma are described.
+    candidates that were fitted but not named, ``(effect, why)``;
+    ``effects`` the final model's effects, whose known limits
+    (:data:`SUBPIXEL_LIMITS`) are named. Only patterns that stand out at
+    :data:`UNEXPLAINED_Z` sigma are described.
     """
     out = []
     n = d["signal_counts"]
@@ -544,6 +612,8 @@ def describe_unexplained(d, rejected=()):
     if np.isfinite(z) and z > UNEXPLAINED_Z:
         out.append(f"residuals repeat pixel by pixel across pairs (mean product {m:.3f}): "
                    "a fixed per-pixel pattern")
+    out += [f"{name} is in the model, but {SUBPIXEL_LIMITS[name]}"
+            for name in effects if name in SUBPIXEL_LIMITS]
     var_bad = ok & (z_var > UNEXPLAINED_Z) & (np.abs(z_mean) < np.maximum(3.0, 0.3 * z_var))
     if var_bad.any():
         lo, hi = centres[var_bad].min(), centres[var_bad].max()
@@ -572,6 +642,20 @@ def describe_unexplained(d, rejected=()):
                    "(no signal range, probe type or direction stands out at "
                    f"{UNEXPLAINED_Z:g} sigma)")
     return out
+
+
+def _full_evidence(frames, fitted, dev_now, k, ln_n):
+    """delta BIC of a fitted candidate by the full Gaussian likelihood: its mean
+    *and* its propagated variance updated (the fits hold the variance fixed).
+
+    Reported beside near-degenerate alternatives, not used to name: it tells an
+    effect before shot noise (brighter-fatter moves charge that then has its
+    own Poisson noise, so the neighbours' variance grows) from one after it
+    (a coupling moves noise along with the charge), but it is small (-2 to +54 on
+    80x80 frames at a 1-2 % deflection, docs/discover.md) and it calls a
+    flow computed from the collected charge a coupling, which in its noise it is.
+    """
+    return dev_now - frames.deviance(fitted, frames.predict(fitted)) - k * ln_n
 
 
 def _fit_candidate(frames, model, name, parts, sds, chi2_now, dev_now, ln_n):
@@ -629,14 +713,14 @@ def discover(data, seed=0, threshold=EVIDENCE_THRESHOLD, max_steps=MAX_STEPS,
     baseline = _diagnostics(frames, model, probes, masks, parts)
     current_gap = baseline["gap"]
     say(f"baseline gap {current_gap:.4f} over {frames.n} pixels ({model.describe()})")
-    steps, final_fit, stop, rejected = [], None, None, []
+    steps, final_fit, stop, rejected, pruned = [], None, None, [], []
     while len(steps) < max_steps:
         floor, floor_sigma, _ = frames.floor(model, rng, max(4, floor_simulations // 3), parts)
         sds = _sds(model, parts)
         chi2_now = _chi2(frames, model, sds)
         dev_now = frames.deviance(model, parts)
         trials = {n: _fit_candidate(frames, model, n, parts, sds, chi2_now, dev_now, ln_n)
-                  for n in _candidates(model)}
+                  for n in _candidates(model) if n not in {p["effect"] for p in pruned}}
         if not trials:
             stop = {"reason": "every effect of the vocabulary is in the model"}
             break
@@ -688,6 +772,11 @@ def discover(data, seed=0, threshold=EVIDENCE_THRESHOLD, max_steps=MAX_STEPS,
             say("stop: " + why)
             break
         refit = _refit_all(frames, fit.model)
+        # an earlier effect whose work the newcomer now does is dropped (its
+        # parameters fall back to "off" or to values the data no longer need)
+        kept, dropped = prune(frames, refit.model, threshold, keep=(best,))
+        if dropped:
+            refit = _refit_all(frames, kept)
         new_parts = frames.predict(refit.model)
         gap_after = gap(frames.residuals(refit.model, new_parts)[0])
         excess = current_gap - floor
@@ -706,23 +795,35 @@ def discover(data, seed=0, threshold=EVIDENCE_THRESHOLD, max_steps=MAX_STEPS,
             say("stop: " + why)
             break
         alternatives = []
+        best_full = _full_evidence(frames, fit.model, dev_now, k, ln_n)
         for name, (ev, dc, kk, f) in sorted(named.items(), key=lambda t: -t[1][0]):
             if name == best or ev < max(threshold, ALTERNATIVE_RATIO * evidence):
                 continue
             params, errors = _params_report(f, name, lab.readnoise)
             alternatives.append({
                 "effect": name, "evidence": round(ev, 2), "params": params,
+                "evidence_with_variance": round(_full_evidence(frames, f.model, dev_now, kk,
+                                                               ln_n), 2),
                 "uncertainties": errors,
                 "separated_by": SEPARATION.get(frozenset({best, name}),
                                                "the stacked windows per signal bin")})
         final_fit, model, parts = refit, refit.model, new_parts
+        for name, values, worth in dropped:
+            pruned.append({"effect": name, "after_step": len(steps) + 1, "replaced_by": best,
+                           "params_before": values, "evidence": round(worth, 2),
+                           "reason": f"after {best} joined and every parameter was refitted, "
+                                     f"keeping {name} was worth delta BIC {worth:.1f} "
+                                     f"(threshold {threshold:g}): {best} does its work"})
+            say(f"dropped {name}: keeping it was worth delta BIC {worth:.1f}")
         params, errors = _params_report(final_fit, best, lab.readnoise)
         steps.append({"effect": best, "params": params, "uncertainties": errors,
                       "gap_before": current_gap, "gap_after": gap_after,
                       "explained_fraction": fraction,
                       "evidence": evidence, "evidence_kind": "delta_BIC",
+                      "evidence_with_variance": best_full,
                       "delta_chi2": delta, "n_params": k,
                       "refitted_with": _partners(best, fit.model),
+                      "pruned": [name for name, _, _ in dropped],
                       "floor_before": floor, "floor_sigma_before": floor_sigma,
                       "alternatives": alternatives,
                       "candidates": {n: round(t[0], 2) for n, t in trials.items()},
@@ -736,7 +837,7 @@ def discover(data, seed=0, threshold=EVIDENCE_THRESHOLD, max_steps=MAX_STEPS,
     final = _diagnostics(frames, model, probes, masks, parts)
     final["floor_chi2_vs_signal"] = floor_bins
     complete = bool(abs(current_gap - floor) <= COMPLETE_SIGMAS * floor_sigma)
-    unexplained = [] if complete else describe_unexplained(final, rejected)
+    unexplained = [] if complete else describe_unexplained(final, rejected, list(model.effects))
     final_params = {}
     final_errors = {}
     if final_fit is not None:
@@ -756,7 +857,8 @@ def discover(data, seed=0, threshold=EVIDENCE_THRESHOLD, max_steps=MAX_STEPS,
         "gap_floor_sigma": floor_sigma,
         "floor_simulations": floor_simulations,
         "steps": steps,
-        "missing_effects": [s["effect"] for s in steps],
+        "missing_effects": [s["effect"] for s in steps if s["effect"] in model.effects],
+        "pruned": pruned,
         "final_gap": current_gap,
         "complete": complete,
         "unexplained": unexplained,
