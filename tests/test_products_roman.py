@@ -10,17 +10,10 @@ import numpy as np
 import roman_datamodels.datamodels as rdm
 
 from ipc_taichi.reference import couple_reference
+from tests.test_products import _next_to
+
 DO_NOT_USE = 1
 GAIN, EXPTIME = 2.0, 139.8
-
-
-def _next_to(mask):
-    near = mask.copy()
-    near[1:] |= mask[:-1]
-    near[:-1] |= mask[1:]
-    near[:, 1:] |= mask[:, :-1]
-    near[:, :-1] |= mask[:, 1:]
-    return near
 
 
 def test_level2_image(cli, tmp_path, rng):
