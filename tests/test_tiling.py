@@ -2,7 +2,6 @@
 
 import numpy as np
 import pytest
-from astropy.io import fits
 
 import ipc_taichi
 from ipc_taichi.datasets import star_field
