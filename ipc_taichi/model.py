@@ -4,15 +4,52 @@ A :class:`CouplingModel` is resolved and validated once (law parsed, geometry
 built, edge checked, the Jacobi contraction condition tested) and then handed
 unchanged to every layer: the forward model, the decoupler, tiling, the Dask
 cluster and the product pipeline.
+
+The model file
+--------------
+:meth:`CouplingModel.save` and :meth:`CouplingModel.load` keep a model on disk
+(what ``ipc-taichi calibrate`` writes and ``--model FILE`` reads): one JSON
+document, versioned, readable by eye and by any language::
+
+    {
+      "format": "ipc_taichi.coupling_model",
+      "version": 1,
+      "law": {"kind": "parametric", "name": "...", "amp_diff": ..., "scale_diff": ...,
+              "amp_level": ..., "scale_level": ..., "floor": ...}
+          or {"kind": "table", "name": "...", "signal_min": ..., "signal_step": ...,
+              "table": [[...], ...]},
+      "geometry": [[dy, dx, weight], ...],
+      "edge": "zero" | "isolated",
+      "units": "electron",
+      "provenance": {...},        # free-form: inputs, gain, software version, date
+      "fit": {...}                # free-form: fit quality, uncertainties, what was assumed
+    }
+
+The law is in electrons of collected charge (``units`` must say so): a model
+measured in DN is converted before it is written. ``geometry`` multiplies
+alpha exactly as :class:`ipc_taichi.geometry.Geometry` does. ``provenance``
+and ``fit`` are carried, never interpreted, by the readers.
+
+:meth:`CouplingModel.save` writes to a temporary file in the target folder
+and renames it into place, so a crash never leaves half a model.
 """
 
+import json
+import os
+import tempfile
 from dataclasses import dataclass
 
-from .errors import IPCInputError
-from .geometry import Geometry
-from .laws import check_convergence, get_law
+import numpy as np
 
-__all__ = ["CouplingModel", "EDGES"]
+from .errors import IPCInputError, LawError
+from .geometry import Geometry
+from .laws import ParametricLaw, TabulatedLaw, check_convergence, get_law
+
+__all__ = ["CouplingModel", "EDGES", "MODEL_FORMAT", "MODEL_VERSION"]
+
+MODEL_FORMAT = "ipc_taichi.coupling_model"
+MODEL_VERSION = 1
+_PARAMETRIC = ("amp_diff", "scale_diff", "amp_level", "scale_level", "floor")
 
 EDGES = ("zero", "isolated")
 """Edge rules: ``zero`` = zero-signal pixels beyond the frame (they take
@@ -78,8 +115,11 @@ class CouplingModel:
         ``model=`` arguments (not both)."""
         if model is None:
             return cls.resolve(law, geometry, edge)
+        if isinstance(model, (str, os.PathLike)):
+            model = cls.load(model)
         if not isinstance(model, cls):
-            raise IPCInputError(f"model must be a CouplingModel, got {type(model).__name__}")
+            raise IPCInputError(f"model must be a CouplingModel or a model file path, got "
+                                f"{type(model).__name__}")
         if not (isinstance(law, str) and law == "donlon2018") or geometry is not None \
                 or edge != "zero":
             raise IPCInputError("give either model= or law/geometry/edge, not both")
@@ -93,3 +133,123 @@ class CouplingModel:
     def describe(self):
         """One line: ``law; geometry; edge``."""
         return f"{self.law.describe()}; {self.geometry.describe()}; edge {self.edge}"
+
+    # ---- the model file --------------------------------------------------------------
+
+    def to_dict(self, provenance=None, fit=None):
+        """The model file's content (see the module docstring)."""
+        law = self.law
+        if isinstance(law, ParametricLaw):
+            law_doc = {"kind": "parametric", "name": law.name,
+                       **{k: float(getattr(law, k)) for k in _PARAMETRIC}}
+        elif isinstance(law, TabulatedLaw):
+            law_doc = {"kind": "table", "name": law.name, "signal_min": float(law.signal_min),
+                       "signal_step": float(law.signal_step), "table": law.table.tolist()}
+        else:
+            raise LawError(f"cannot write a law of type {type(law).__name__} to a model file")
+        return {
+            "format": MODEL_FORMAT,
+            "version": MODEL_VERSION,
+            "law": law_doc,
+            "geometry": [[dy, dx, float(w)] for (dy, dx), w in self.geometry.weights],
+            "edge": self.edge,
+            "units": "electron",
+            "provenance": dict(provenance or {}),
+            "fit": dict(fit or {}),
+        }
+
+    @classmethod
+    def from_dict(cls, doc, source="model file"):
+        """A validated model from a model file's content; ``source`` names the
+        file in errors (:class:`IPCInputError`, one line)."""
+        def bad(why):
+            return IPCInputError(f"{source}: {why}")
+
+        if not isinstance(doc, dict) or doc.get("format") != MODEL_FORMAT:
+            raise bad(f"not an ipc_taichi coupling-model file (no \"format\": \"{MODEL_FORMAT}\")")
+        version = doc.get("version")
+        if not isinstance(version, int) or version < 1:
+            raise bad(f"bad version {version!r}")
+        if version > MODEL_VERSION:
+            raise bad(f"version {version} is newer than this ipc_taichi reads "
+                      f"({MODEL_VERSION}); upgrade ipc_taichi")
+        if doc.get("units", "electron") != "electron":
+            raise bad(f"the law must be in electrons, the file says units={doc.get('units')!r}")
+        law_doc = doc.get("law")
+        if not isinstance(law_doc, dict):
+            raise bad('no "law" object')
+        kind = law_doc.get("kind")
+        if kind not in ("parametric", "table"):
+            raise bad(f"unknown law kind {kind!r} (parametric or table)")
+        try:
+            if kind == "parametric":
+                law = ParametricLaw(*(float(law_doc[k]) for k in _PARAMETRIC),
+                                    name=str(law_doc.get("name", "parametric")))
+            else:
+                law = TabulatedLaw(float(law_doc["signal_min"]), float(law_doc["signal_step"]),
+                                   np.asarray(law_doc["table"], dtype=np.float64),
+                                   name=str(law_doc.get("name", "table")))
+            geometry = Geometry({(int(dy), int(dx)): float(w) for dy, dx, w in doc["geometry"]})
+            return cls.resolve(law, geometry, doc.get("edge", "zero"))
+        except (KeyError, TypeError, ValueError) as exc:
+            raise bad(f"{type(exc).__name__}: {exc}" if not isinstance(exc, ValueError)
+                      else str(exc)) from None
+
+    @classmethod
+    def load(cls, path, with_document=False):
+        """The model in the file at ``path`` (``(model, document)`` with
+        ``with_document``, for its ``provenance`` and ``fit``).
+
+        Raises
+        ------
+        IPCInputError
+            One line naming the file: unreadable, not JSON, not a model file,
+            a newer version, or a law/geometry that does not validate.
+        """
+        path = os.fspath(path)
+        try:
+            with open(path, encoding="utf-8") as f:
+                doc = json.load(f)
+        except OSError as exc:
+            raise IPCInputError(f"{path}: cannot read the model file "
+                                f"({exc.strerror or exc})") from None
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+            raise IPCInputError(f"{path}: not a JSON coupling-model file ({exc})") from None
+        model = cls.from_dict(doc, source=path)
+        return (model, doc) if with_document else model
+
+    def save(self, path, provenance=None, fit=None, overwrite=False):
+        """Write the model (with ``provenance`` and ``fit`` dicts of JSON values;
+        NumPy scalars and arrays are converted, use None for "not measured") to
+        ``path`` atomically (temporary file in the same folder, then renamed).
+
+        Raises
+        ------
+        FileExistsError
+            ``path`` exists and ``overwrite`` is false.
+        """
+        path = os.fspath(path)
+        if os.path.exists(path) and not overwrite:
+            raise FileExistsError(f"{path}: exists (use --overwrite to replace it)")
+        text = json.dumps(self.to_dict(provenance, fit), indent=1, allow_nan=False,
+                          default=_json_value)
+        fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".json",
+                                   dir=os.path.dirname(os.path.abspath(path)))
+        try:
+            with os.fdopen(fd, "w", encoding="utf-8") as f:
+                f.write(text + "\n")
+            os.replace(tmp, path)
+        except BaseException:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+            raise
+        return path
+
+
+def _json_value(value):
+    """JSON for NumPy scalars and arrays."""
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    raise TypeError(f"cannot write {type(value).__name__} to a model file")

@@ -1,6 +1,6 @@
 """The options shared by the subcommands, defined once.
 
-``--law/--geometry/--edge`` (the coupling model), ``--max-iter/--tol`` (the
+``--law/--geometry/--edge`` or ``--model FILE`` (the coupling model), ``--max-iter/--tol`` (the
 stopping rule), ``--arch/--precision`` (the Taichi runtime) and ``--quiet``.
 :func:`model_from_args` turns the model options into one
 :class:`ipc_taichi.model.CouplingModel`, resolved (and checked) once, before
@@ -8,27 +8,35 @@ any work.
 """
 
 from .. import iteration
+from ..errors import IPCInputError
 from ..model import EDGES, CouplingModel
 
 __all__ = ["add_model_arguments", "add_iteration_arguments", "add_runtime_arguments",
-           "add_quiet_argument", "model_from_args"]
+           "add_quiet_argument", "model_from_args", "model_is_explicit", "DEFAULT_LAW"]
+
+DEFAULT_LAW = "donlon2018"
+"""The law when neither ``--law`` nor ``--model`` is given (the paper's)."""
 
 
 def add_model_arguments(parser):
-    """``--law``, ``--geometry``, ``--edge``: the coupling model."""
+    """``--law``, ``--geometry``, ``--edge`` or ``--model FILE``: the coupling model."""
     g = parser.add_argument_group("coupling model")
-    g.add_argument("--law", default="donlon2018",
+    g.add_argument("--model", metavar="FILE", default=None,
+                   help="a coupling-model file (JSON, as written by 'ipc-taichi calibrate'): "
+                        "law, geometry and edge measured for this detector; replaces "
+                        "--law/--geometry/--edge")
+    g.add_argument("--law", default=None,
                    help="coupling law, in electrons of collected charge: donlon2018 (default; "
                         "the 20000*sqrt2 form that reproduces the paper's tables), "
                         "donlon2018_printed (Eq. 7 as printed), constant:ALPHA (fraction, "
                         "e.g. constant:0.0125), "
                         "parametric:AMP_DIFF,SCALE_DIFF,AMP_LEVEL,SCALE_LEVEL,FLOOR, "
                         "table:FILE.npz (arrays 'signal', 'alpha')")
-    g.add_argument("--geometry", default="nearest",
+    g.add_argument("--geometry", default=None,
                    help="neighbour weights multiplying alpha, e.g. "
                         "'horizontal=1,vertical=0.9,diagonal=0.1,second=0.02' (default: nearest, "
                         "4 neighbours with weight 1)")
-    g.add_argument("--edge", choices=EDGES, default="zero",
+    g.add_argument("--edge", choices=EDGES, default=None,
                    help="beyond the frame: 'zero' = zero-signal pixels that take charge "
                         "(default, the paper's choice); 'isolated' = no coupling across the "
                         "edge, total charge conserved")
@@ -63,7 +71,22 @@ def add_quiet_argument(parser, what="progress bars and notices"):
     parser.add_argument("--quiet", action="store_true", help=f"no {what}")
 
 
+def model_is_explicit(args):
+    """Whether the user chose the model (``--model`` or ``--law``), rather than
+    getting the paper's law by default."""
+    return args.model is not None or args.law is not None
+
+
 def model_from_args(args):
-    """The :class:`CouplingModel` of ``--law/--geometry/--edge`` (bad values
-    raise :class:`ipc_taichi.IPCInputError` and friends: usage errors)."""
-    return CouplingModel.resolve(args.law, args.geometry, args.edge)
+    """The :class:`CouplingModel` of ``--model FILE`` or ``--law/--geometry/--edge``
+    (default: the paper's law, nearest neighbours, edge ``zero``). Bad values,
+    or ``--model`` together with any of the others, raise
+    :class:`ipc_taichi.IPCInputError` and friends: usage errors."""
+    if args.model is not None:
+        given = [f"--{name}" for name in ("law", "geometry", "edge")
+                 if getattr(args, name) is not None]
+        if given:
+            raise IPCInputError(f"--model {args.model} holds the law, geometry and edge; "
+                                f"do not also give {', '.join(given)}")
+        return CouplingModel.load(args.model)
+    return CouplingModel.resolve(args.law or DEFAULT_LAW, args.geometry, args.edge or "zero")

@@ -1,0 +1,88 @@
+"""The coupling-model file: round trip, refusals, and --model on the command line."""
+
+import json
+
+import numpy as np
+import pytest
+from astropy.io import fits
+
+from ipc_taichi import IPCInputError, couple, decouple
+from ipc_taichi.geometry import Geometry
+from ipc_taichi.laws import TabulatedLaw, constant, donlon2018
+from ipc_taichi.model import CouplingModel
+
+
+def _anisotropic():
+    return CouplingModel.resolve(constant(0.006), Geometry.terms(1.0, 0.8, 0.1, 0.02), "isolated")
+
+
+@pytest.mark.parametrize("make", [
+    _anisotropic,
+    lambda: CouplingModel.resolve(donlon2018()),
+    lambda: CouplingModel.resolve(TabulatedLaw.from_callable(
+        lambda s, n: 0.005 + 1e-8 * (s + n), (0.0, 60000.0), n=9, name="rising")),
+])
+def test_round_trip_keeps_law_geometry_edge(tmp_path, make):
+    model = make()
+    path = model.save(tmp_path / "m.json", provenance={"gain": np.float32(2.5)},
+                      fit={"chi2": np.array([1.0, 2.0])})
+    back, doc = CouplingModel.load(path, with_document=True)
+    assert back.geometry == model.geometry and back.edge == model.edge
+    s = np.array([0.0, 1e3, 3e4, 6e4])
+    np.testing.assert_array_equal(back.law.alpha(s[:, None], s), model.law.alpha(s[:, None], s))
+    assert doc["provenance"] == {"gain": 2.5} and doc["fit"] == {"chi2": [1.0, 2.0]}
+
+
+def test_save_is_atomic_and_refuses_overwrite(tmp_path):
+    path = tmp_path / "m.json"
+    _anisotropic().save(path)
+    with pytest.raises(FileExistsError):
+        _anisotropic().save(path)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["m.json"]
+
+
+@pytest.mark.parametrize("content, words", [
+    ("not json", "not a JSON"),
+    (json.dumps({"format": "other"}), "not an ipc_taichi coupling-model file"),
+    (json.dumps({"format": "ipc_taichi.coupling_model", "version": 99}), "newer"),
+    (json.dumps({"format": "ipc_taichi.coupling_model", "version": 1, "units": "DN",
+                 "law": {}}), "electrons"),
+    (json.dumps({"format": "ipc_taichi.coupling_model", "version": 1,
+                 "law": {"kind": "parametric", "amp_diff": 0, "scale_diff": 1, "amp_level": 0,
+                         "scale_level": 1, "floor": 0.2}, "geometry": [[0, 1, 1], [0, -1, 1],
+                                                                       [1, 0, 1], [-1, 0, 1]]}),
+     "too strong"),
+    (json.dumps({"format": "ipc_taichi.coupling_model", "version": 1,
+                 "law": {"kind": "spline"}, "geometry": []}), "unknown law kind"),
+])
+def test_bad_files_give_one_line_naming_the_file(tmp_path, content, words):
+    path = tmp_path / "bad.json"
+    path.write_text(content)
+    with pytest.raises(IPCInputError) as err:
+        CouplingModel.load(path)
+    assert str(path) in str(err.value) and words in str(err.value)
+    assert "\n" not in str(err.value)
+
+
+def test_decouple_takes_a_model_path(tmp_path):
+    model = _anisotropic()
+    path = model.save(tmp_path / "m.json")
+    truth = np.random.default_rng(1).uniform(0, 5e4, (24, 20))
+    measured = couple(truth, model=model)
+    np.testing.assert_array_equal(decouple(measured, model=str(path)),
+                                  decouple(measured, model=model))
+
+
+def test_cli_model_option(cli, tmp_path):
+    model = _anisotropic()
+    mpath = model.save(tmp_path / "m.json")
+    truth = np.random.default_rng(2).uniform(0, 5e4, (16, 16))
+    src = tmp_path / "in.fits"
+    fits.PrimaryHDU(couple(truth, model=model)).writeto(src)
+    assert cli("decouple", str(src), str(tmp_path / "out.fits"), "--model", str(mpath)).returncode == 0
+    out = fits.getdata(tmp_path / "out.fits")
+    np.testing.assert_allclose(out, truth, rtol=0, atol=1e-6 * truth.max())
+    # the model file and --law together are refused before any work
+    assert cli("decouple", str(src), str(tmp_path / "o2.fits"), "--model", str(mpath),
+               "--law", "constant:0.01").returncode == 2
+    assert not (tmp_path / "o2.fits").exists()
