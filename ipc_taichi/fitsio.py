@@ -18,9 +18,9 @@ import tempfile
 import numpy as np
 
 from .errors import IPCInputError
+from .interrupts import stop_requested
 
-__all__ = ["read_image", "write_image", "parse_hdu", "atomic_output", "check_output_path",
-           "request_stop", "clear_stop", "check_stop"]
+__all__ = ["read_image", "write_image", "parse_hdu", "atomic_output", "check_output_path"]
 
 # structural and scaling keywords that must not be copied onto a new float image
 _STRUCTURAL = {"SIMPLE", "XTENSION", "BITPIX", "NAXIS", "EXTEND", "PCOUNT", "GCOUNT",
@@ -94,34 +94,14 @@ def read_image(path, hdu=None):
 
 
 def check_output_path(path, overwrite):
-    """Refuse to replace an existing file unless ``overwrite``."""
+    """Refuse a directory, and an existing file unless ``overwrite``."""
+    if os.path.isdir(path):
+        raise IPCInputError(f"{path}: is a directory; name an output file")
     if os.path.exists(path) and not overwrite:
         raise IPCInputError(f"{path}: exists (use --overwrite to replace it)")
     parent = os.path.dirname(os.path.abspath(path))
     if not os.path.isdir(parent):
         raise IPCInputError(f"{path}: directory {parent} does not exist")
-
-
-_stop_requests = []
-
-
-def request_stop(exc):
-    """Remember that the process was asked to stop (a signal handler calls
-    this, then raises ``exc``). Taichi's kernel compiler has bare ``except:``
-    clauses that can swallow the exception; :func:`check_stop` raises it again
-    at the next check, and :class:`atomic_output` never commits after it."""
-    _stop_requests.append(exc)
-
-
-def clear_stop():
-    """Forget earlier stop requests (a new command starts)."""
-    _stop_requests.clear()
-
-
-def check_stop():
-    """Raise the pending stop request, if any."""
-    if _stop_requests:
-        raise _stop_requests[0]
 
 
 class atomic_output:
@@ -142,10 +122,11 @@ class atomic_output:
         return self.tmp
 
     def __exit__(self, exc_type, exc, tb):
-        if exc_type is None and _stop_requests:  # a swallowed SIGINT/SIGTERM: do not commit
+        stop = stop_requested()
+        if exc_type is None and stop is not None:  # a swallowed SIGINT/SIGTERM: do not commit
             if os.path.exists(self.tmp):
                 os.unlink(self.tmp)
-            raise _stop_requests[0]
+            raise stop
         if exc_type is None:
             if os.path.exists(self.path) and not self.overwrite:  # appeared meanwhile
                 os.unlink(self.tmp)

@@ -46,7 +46,8 @@ def test_signal_mid_run_leaves_nothing(tmp_path, rng, sig, code, delay):
 def test_swallowed_interrupt_does_not_commit(tmp_path):
     """A library that swallows the KeyboardInterrupt of a signal (Taichi's
     kernel compiler has bare ``except:``) cannot make the output appear."""
-    from ipc_taichi.fitsio import atomic_output, clear_stop, request_stop
+    from ipc_taichi.fitsio import atomic_output
+    from ipc_taichi.interrupts import clear_stop, request_stop
 
     target = tmp_path / "out.fits"
     request_stop(KeyboardInterrupt())

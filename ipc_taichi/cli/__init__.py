@@ -24,7 +24,7 @@ import warnings
 
 from .. import __version__
 from ..errors import ConvergenceWarning, DivergenceError
-from ..fitsio import clear_stop, request_stop
+from ..interrupts import clear_stop, request_stop
 from ..products.conventions import ProductWarning
 from . import bench, demo, discover, frames
 
@@ -59,7 +59,7 @@ def build_parser():
 
 def _terminate(signum, frame):
     exc = Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
-    request_stop(exc)  # in case a library swallows it (see fitsio.request_stop)
+    request_stop(exc)  # in case a library swallows it (see ipc_taichi.interrupts)
     raise exc
 
 

@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import ConvergenceWarning, DivergenceError, IPCInputError
-from ..fitsio import check_stop
+from ..interrupts import check_stop
 
 __all__ = ["ProductWarning", "JWST_DQ_FLAGS", "dq_flag_table", "parse_dq_bits", "science_region",
            "region_model",

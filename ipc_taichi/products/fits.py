@@ -38,7 +38,8 @@ import numpy as np
 
 from .. import __version__, iteration
 from ..errors import IPCInputError
-from ..fitsio import atomic_output, check_output_path, check_stop, parse_hdu
+from ..fitsio import atomic_output, check_output_path, parse_hdu
+from ..interrupts import check_stop
 from ..model import CouplingModel
 from . import conventions as cv
 

@@ -29,7 +29,8 @@ import numpy as np
 
 from .. import __version__, iteration
 from ..errors import IPCInputError
-from ..fitsio import check_output_path, check_stop
+from ..fitsio import check_output_path
+from ..interrupts import check_stop
 from ..model import CouplingModel
 from . import conventions as cv
 
