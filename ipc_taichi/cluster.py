@@ -84,22 +84,41 @@ class FileResult(dict):
 
 
 def decouple_one_file(input_path, output_path, options):
-    """Read, decouple and write one FITS product (runs on a worker)."""
+    """Read, decouple and write one product (runs on a worker). ``options``:
+    the keyword arguments of :func:`ipc_taichi.products.decouple_file`."""
     from .products import decouple_file
 
     return decouple_file(input_path, output_path, **options)
 
 
-def decouple_files(pairs, options, client, progress=None, task=None):
+def _task_options(options, model):
+    """``options`` (a ProductOptions, or a dict of its fields plus any of
+    ``model``/``law``/``geometry``/``edge``) -> the model arguments and one
+    :class:`~ipc_taichi.products.ProductOptions`."""
+    from .products.options import ProductOptions
+
+    if isinstance(options, ProductOptions):
+        options = {"options": options}
+    options = dict(options or {})
+    coupling = {k: options.pop(k) for k in ("model", "law", "geometry", "edge") if k in options}
+    if model is not None:
+        if coupling.get("model") is not None:
+            raise IPCInputError("decouple_files: model given twice")
+        coupling["model"] = model
+    product = ProductOptions.from_kwargs(options.pop("options", None), **options)
+    return coupling, product
+
+
+def decouple_files(pairs, options, client, progress=None, task=None, model=None):
     """Decouple ``(input, output)`` pairs on ``client``'s workers.
 
     Parameters
     ----------
     pairs : list of (str, str)
-    options : dict
-        Keyword arguments of :func:`ipc_taichi.products.decouple_file`
-        (``model`` or law/geometry/edge, hdu, overwrite, max_iter, tol, arch,
-        precision, tile, dq_bits, refpix, gain, exptime, bunit, output_dtype).
+    options : ProductOptions or dict
+        The product options (:class:`ipc_taichi.products.ProductOptions`), or
+        a dict of their fields, which may also hold ``model`` or
+        ``law``/``geometry``/``edge`` (as :func:`ipc_taichi.products.decouple_file`).
         Existing outputs are refused up front unless ``overwrite`` (the check runs
         on the client: inputs and outputs must be on a file system the client and
         the workers share).
@@ -108,7 +127,10 @@ def decouple_files(pairs, options, client, progress=None, task=None):
         Called with each :class:`FileResult` as it completes.
     task : callable, optional
         ``task(input, output, options) -> summary`` run per file (default
-        :func:`decouple_one_file`).
+        :func:`decouple_one_file`), ``options`` being the keyword arguments of
+        :func:`ipc_taichi.products.decouple_file`.
+    model : CouplingModel or str, optional
+        The coupling model (or a model file), instead of ``options["model"]``.
 
     Returns
     -------
@@ -124,8 +146,9 @@ def decouple_files(pairs, options, client, progress=None, task=None):
     # Refuse existing outputs here, once, before any work. A worker that dies loses
     # the results it holds and Dask runs those tasks again; such a rerun must be
     # allowed to replace the output its first run wrote (same content, atomic).
-    overwrite = bool(options.get("overwrite", False))
-    options = dict(options, overwrite=True)
+    coupling, product = _task_options(options, model)
+    overwrite = product.overwrite
+    options = dict(coupling, options=product.replace(overwrite=True))
     futures = {}
     for k, (src, dst) in enumerate(pairs):
         if not overwrite and os.path.exists(dst):
@@ -214,8 +237,8 @@ def decouple_mosaic(measured, client, chunk=1024, law="donlon2018", geometry=Non
     frame = np.asarray(measured, dtype=np.float64)
     if frame.ndim != 2:
         raise IPCInputError(f"decouple_mosaic: expected a 2-D frame, got shape {frame.shape}")
-    model = CouplingModel.resolve(model) if model is not None else \
-        CouplingModel.resolve(law, geometry, edge)
+    # law= with model= is refused, as ipc_taichi.decouple refuses it
+    model = CouplingModel.from_arguments(law, geometry, edge, model=model)
     shared = client.scatter(frame, broadcast=False)
 
     def mapper(n, halo, cores):

@@ -109,7 +109,7 @@ def test_rate_product_kept_whole(cli, tmp_path, rate_file):
     src, truth, bad, refpix = rate_file
     out = tmp_path / "out" / "jw01_ipc.fits"
     out.parent.mkdir()
-    r = cli("decouple", src, out, "--gain", GAIN)
+    r = cli("decouple", "--law", "donlon2018", src, out, "--gain", GAIN)
     assert r.returncode == 0, r.stderr
     with fits.open(src) as a, fits.open(out) as b:
         assert [h.name for h in b] == [h.name for h in a]
@@ -151,12 +151,12 @@ def test_masked_pixels_do_not_couple(cli, tmp_path, rng):
     fits.HDUList([fits.PrimaryHDU(), fits.ImageHDU(measured, name="SCI"),
                   fits.ImageHDU(np.where(bad, DO_NOT_USE, 0).astype(np.uint32),
                                 name="DQ")]).writeto(src)
-    r = cli("decouple", src, out)
+    r = cli("decouple", "--law", "donlon2018", src, out)
     assert r.returncode == 0, r.stderr
     got = fits.getdata(out, "SCI")
     assert (got[bad] == measured[bad]).all()
     assert np.abs(got - truth)[~bad].max() <= 2e-5 * truth.max()
-    r = cli("decouple", src, tmp_path / "nodq.fits", "--dq-bits", "0")  # junk decoupled as data
+    r = cli("decouple", "--law", "donlon2018", src, tmp_path / "nodq.fits", "--dq-bits", "0")  # junk decoupled as data
     assert r.returncode == 0, r.stderr
     wrong = fits.getdata(tmp_path / "nodq.fits", "SCI")
     assert np.abs(wrong - truth)[_next_to(bad) & ~bad].max() > 1000
@@ -165,8 +165,8 @@ def test_masked_pixels_do_not_couple(cli, tmp_path, rng):
 def test_rate_product_tiled_equals_whole(cli, tmp_path, rate_file):
     src, truth, bad, refpix = rate_file
     whole, tiled = tmp_path / "whole.fits", tmp_path / "tiled.fits"
-    assert cli("decouple", src, whole, "--gain", GAIN).returncode == 0
-    r = cli("decouple", src, tiled, "--gain", GAIN, "--tile", 16)
+    assert cli("decouple", "--law", "donlon2018", src, whole, "--gain", GAIN).returncode == 0
+    r = cli("decouple", "--law", "donlon2018", src, tiled, "--gain", GAIN, "--tile", 16)
     assert r.returncode == 0, r.stderr
     with fits.open(whole) as a, fits.open(tiled) as b:
         assert [h.name for h in b] == [h.name for h in a]
@@ -194,14 +194,15 @@ def test_ramp_product_group_by_group(cli, tmp_path, rng):
     late = _bad_pixels(rng, shape, 5) & ~bad
     groupdq[0, 2][late] = DO_NOT_USE  # flagged in the last group only
     sci[0, 2][late] = -999.0
-    groupdq[0, 1][_bad_pixels(rng, shape, 5)] = SATURATED  # not a default bit: decoupled
+    saturated = _bad_pixels(rng, shape, 5)
+    groupdq[0, 1][saturated] = SATURATED  # a default bit: its charge is unknown, left out
     ramp = fits.ImageHDU(sci, name="SCI")
     ramp.header["BUNIT"] = "DN"
     src, out = tmp_path / "jw01_ramp.fits", tmp_path / "jw01_ramp_ipc.fits"
     fits.HDUList([fits.PrimaryHDU(header=_primary()), ramp,
                   fits.ImageHDU(pixeldq, name="PIXELDQ"), fits.ImageHDU(groupdq, name="GROUPDQ"),
                   fits.ImageHDU(np.ones(sci.shape, np.float32), name="ERR")]).writeto(src)
-    r = cli("decouple", src, out, "--gain", GAIN)
+    r = cli("decouple", "--law", "donlon2018", src, out, "--gain", GAIN)
     assert r.returncode == 0, r.stderr
     refpix = pixeldq & REFERENCE_PIXEL != 0
     with fits.open(src) as a, fits.open(out) as b:
@@ -212,7 +213,7 @@ def test_ramp_product_group_by_group(cli, tmp_path, rng):
         assert got.dtype.itemsize == 4 and got.shape == (1, 3) + shape
         assert "frame     2" in str(b[0].header["HISTORY"])
         for g in range(3):
-            masked = bad | (late if g == 2 else False)
+            masked = bad | (late if g == 2 else False) | (saturated if g == 1 else False)
             keep = masked | refpix  # bit-identical (the file is big-endian, sci native)
             assert got[0, g][keep].astype("<f4").tobytes() == sci[0, g][keep].tobytes()
             ring1, ring2, far = _rings(masked)
@@ -233,15 +234,15 @@ def test_units_are_converted(cli, tmp_path, rng):
     h = fits.Header()
     h["BUNIT"], h["EFFINTTM"], h["GAIN"] = "DN/s", 50.0, 1.8
     fits.writeto(rate_file, measured_e / (1.8 * 50.0), header=h)
-    assert cli("decouple", e_file, tmp_path / "e_out.fits").returncode == 0
-    r = cli("decouple", rate_file, tmp_path / "rate_out.fits")  # GAIN and EFFINTTM keywords
+    assert cli("decouple", "--law", "donlon2018", e_file, tmp_path / "e_out.fits").returncode == 0
+    r = cli("decouple", "--law", "donlon2018", rate_file, tmp_path / "rate_out.fits")  # GAIN and EFFINTTM keywords
     assert r.returncode == 0, r.stderr
     e_out = fits.getdata(tmp_path / "e_out.fits")
     rate_out = fits.getdata(tmp_path / "rate_out.fits")
     np.testing.assert_allclose(rate_out * 1.8 * 50.0, e_out, rtol=1e-10)
     assert np.abs(e_out - truth_e).max() < 0.05
     # the same numbers read as electrons would be decoupled with alpha at ~0 e-
-    r = cli("decouple", rate_file, tmp_path / "wrong.fits", "--bunit", "electron")
+    r = cli("decouple", "--law", "donlon2018", rate_file, tmp_path / "wrong.fits", "--bunit", "electron")
     assert r.returncode == 0
     wrong = fits.getdata(tmp_path / "wrong.fits") * 1.8 * 50.0
     assert np.abs(wrong - truth_e).max() > 100 * np.abs(e_out - truth_e).max()
@@ -259,7 +260,7 @@ def test_units_refused(cli, tmp_path, rng, header, args, message):
     h.update(header)
     fits.HDUList([fits.PrimaryHDU(header=h), fits.ImageHDU(rng.uniform(0, 1, (8, 8)),
                                                            name="SCI", header=h)]).writeto(src)
-    r = cli("decouple", src, tmp_path / "out.fits", *args)
+    r = cli("decouple", "--law", "donlon2018", src, tmp_path / "out.fits", *args)
     assert r.returncode == 2
     line = r.stderr.strip()
     assert len(line.splitlines()) == 1 and message in line and "in.fits[SCI]" in line
@@ -281,7 +282,7 @@ def test_refpix_option_and_gain_image(cli, tmp_path, rng):
     unknown = gain.copy()
     unknown[15, 15] = 0.0  # no usable gain there: the pixel is left out, like a DQ flag
     fits.writeto(gfile, unknown)
-    r = cli("decouple", src, out, "--gain", gfile, "--refpix", BORDER)
+    r = cli("decouple", "--law", "donlon2018", src, out, "--gain", gfile, "--refpix", BORDER)
     assert r.returncode == 0, r.stderr
     got = fits.getdata(out)
     assert got[15, 15] == dn[15, 15]
@@ -290,12 +291,13 @@ def test_refpix_option_and_gain_image(cli, tmp_path, rng):
     far[13:18, 13:18] = False
     assert np.abs(got * gain - truth_e)[far].max() < 2e-5 * truth_e.max()
     assert (got[:BORDER] == 7.0).all()
-    assert fits.getheader(out)["IPCREFPX"] == f"[4:{shape[0] - 4},4:{shape[1] - 4}]"
+    # a 1-based FITS section [x1:x2,y1:y2], in the science HDU's header
+    assert fits.getheader(out)["IPCREFPX"] == f"[5:{shape[1] - 4},5:{shape[0] - 4}]"
 
 
 def test_dq_hdu_is_refused_as_data(cli, tmp_path, rate_file):
     src, *_ = rate_file
-    r = cli("decouple", src, tmp_path / "o.fits", "--gain", GAIN, "--hdu", "DQ")
+    r = cli("decouple", "--law", "donlon2018", src, tmp_path / "o.fits", "--gain", GAIN, "--hdu", "DQ")
     assert r.returncode == 2 and "bit flags" in r.stderr and "[DQ]" in r.stderr
     assert not (tmp_path / "o.fits").exists()
 
@@ -310,7 +312,7 @@ def test_cube_tiled_keeps_header(cli, tmp_path, rng):
     hdr = fits.Header()
     hdr["OBSERVER"] = "tiles"
     fits.writeto(src, cube.astype(">f8"), header=hdr)
-    r = cli("decouple", src, out, "--tile", 16)
+    r = cli("decouple", "--law", "donlon2018", src, out, "--tile", 16)
     assert r.returncode == 0, r.stderr
     with fits.open(out) as hdul:
         data, h = hdul[0].data, hdul[0].header
@@ -336,7 +338,8 @@ def test_rateints_integration_by_integration(cli, tmp_path, rng):
     src, out = tmp_path / "jw_rateints.fits", tmp_path / "out.fits"
     fits.HDUList([fits.PrimaryHDU(header=_primary()), hdu,
                   fits.ImageHDU(dq, name="DQ")]).writeto(src)
-    r = cli("decouple", src, out, "--gain", GAIN, "--refpix", 0)
+    r = cli("decouple", "--law", "donlon2018", "--edge", "zero", src, out, "--gain", GAIN,
+            "--refpix", 0)
     assert r.returncode == 0, r.stderr
     got = fits.getdata(out, "SCI").astype(float)
     truth = truth_e / (GAIN * EFFINTTM)
@@ -375,8 +378,8 @@ def test_tiled_with_nan_block_equals_whole(cli, tmp_path, rng):
     measured[30, 40] = np.nan
     src = tmp_path / "in.fits"
     fits.writeto(src, measured)
-    assert cli("decouple", src, tmp_path / "whole.fits").returncode == 0
-    r = cli("decouple", src, tmp_path / "tiled.fits", "--tile", 8)
+    assert cli("decouple", "--law", "donlon2018", src, tmp_path / "whole.fits").returncode == 0
+    r = cli("decouple", "--law", "donlon2018", src, tmp_path / "tiled.fits", "--tile", 8)
     assert r.returncode == 0, r.stderr
     whole, tiled = fits.getdata(tmp_path / "whole.fits"), fits.getdata(tmp_path / "tiled.fits")
     assert np.array_equal(np.isnan(tiled), np.isnan(measured))

@@ -41,7 +41,7 @@ def _ramp(rng, shape=(32, 36), bias=None):
 def test_step_on_ramp_model(rng):
     model, truth = _ramp(rng)
     before = model.data.copy()
-    result = IPCTaichiStep(gain=GAIN).run(model)
+    result = IPCTaichiStep(gain=GAIN, law="donlon2018").run(model)
     assert result.meta.cal_step.ipc == "COMPLETE"
     np.testing.assert_array_equal(result.pixeldq, model.pixeldq)
     got = np.asarray(result.data, dtype=float)
@@ -63,7 +63,7 @@ def test_step_in_the_ipc_slot_with_superbias(tmp_path, rng):
     sb = SuperBiasModel(data=bias.astype(np.float32))
     sb_path = tmp_path / "superbias.fits"
     sb.save(sb_path)
-    result = IPCTaichiStep(gain=GAIN, superbias=str(sb_path)).run(model)
+    result = IPCTaichiStep(gain=GAIN, law="donlon2018", superbias=str(sb_path)).run(model)
     got = np.asarray(result.data, dtype=float) - bias
     inner = (slice(BORDER, -BORDER), slice(BORDER, -BORDER))
     for g in range(3):
@@ -71,7 +71,7 @@ def test_step_in_the_ipc_slot_with_superbias(tmp_path, rng):
         assert np.abs(got[0, g] - truth[0, g])[inner].max() <= 2e-5 * truth[0, g].max() + 2e-3
     assert (result.data[0, :, :BORDER] == model.data[0, :, :BORDER]).all()  # reference rows
     with pytest.raises(ValueError, match="superbias"):  # the bias is not collected charge
-        IPCTaichiStep(gain=GAIN).run(model)
+        IPCTaichiStep(gain=GAIN, law="donlon2018").run(model)
 
 
 def test_pipeline_swaps_the_ipc_step():
@@ -81,13 +81,15 @@ def test_pipeline_swaps_the_ipc_step():
 
 
 def test_strun(tmp_path, rng):
+    """``strun ipc_taichi RAMP --gain=G --law=L`` offline: no CRDS parameter
+    lookup (the step has no parameter reference file), no extra flag."""
     model, truth = _ramp(rng)
     src = tmp_path / "jw01_ramp.fits"
     model.save(src)
     r = subprocess.run(
         [os.path.join(os.path.dirname(sys.executable), "strun"),
-         "ipc_taichi.products.jwst_step.IPCTaichiStep", str(src), "--gain=2.0",
-         f"--output_dir={tmp_path}", "--disable-crds-steppars"],
+         "ipc_taichi", str(src), "--gain=2.0", "--law=donlon2018",
+         f"--output_dir={tmp_path}"],
         capture_output=True, text=True, env=ENV, timeout=300, cwd=tmp_path)
     assert r.returncode == 0, r.stderr[-2000:]
     outs = [p for p in os.listdir(tmp_path) if p.endswith(".fits") and p != "jw01_ramp.fits"]

@@ -32,7 +32,9 @@ def test_level2_image(cli, tmp_path, rng):
     model.meta.instrument.detector = "WFI07"
     src, out = tmp_path / "r0001_cal.asdf", tmp_path / "r0001_ipc.asdf"
     model.save(src)
-    r = cli("decouple", src, out, "--gain", GAIN)
+    # the truth was coupled with the zero edge; a 40x36 cut-out would get
+    # 'isolated' by default (no reference border)
+    r = cli("decouple", "--law", "donlon2018", "--edge", "zero", src, out, "--gain", GAIN)
     assert r.returncode == 0, r.stderr
     truth = truth_e / (GAIN * EXPTIME)
     with rdm.open(src) as a, rdm.open(out) as b:
@@ -51,7 +53,8 @@ def test_level2_image(cli, tmp_path, rng):
     assert np.abs(got.astype(float) - truth)[far].max() <= 2e-5 * truth.max()
     assert np.abs(rate.astype(float) - truth)[far].max() > 100 * 2e-5 * truth.max()
     # the positional-overwrite rule knows ASDF outputs too
-    r = cli("decouple", src, out, "--gain", GAIN, "--overwrite")
+    r = cli("decouple", "--law", "donlon2018", "--edge", "zero", src, out, "--gain", GAIN,
+            "--overwrite")
     assert r.returncode == 0, r.stderr
 
 
@@ -64,7 +67,7 @@ def test_flux_calibrated_refused(cli, tmp_path, rng):
     model.meta["cal_step"] = dict.fromkeys(steps, "COMPLETE")  # through the flux step
     src = tmp_path / "r0001_cal.asdf"
     model.save(src)
-    r = cli("decouple", src, tmp_path / "out.asdf", "--gain", GAIN)
+    r = cli("decouple", "--law", "donlon2018", src, tmp_path / "out.asdf", "--gain", GAIN)
     assert r.returncode == 2 and "flux-calibrated" in r.stderr and "r0001_cal.asdf" in r.stderr
 
 
@@ -72,7 +75,7 @@ def test_raw_resultants_refused(cli, tmp_path):
     raw = rdm.ScienceRawModel.create_fake_data(shape=(3, 16, 16))
     src = tmp_path / "r0001_uncal.asdf"
     raw.save(src)
-    r = cli("decouple", src, tmp_path / "out.asdf", "--gain", GAIN)
+    r = cli("decouple", "--law", "donlon2018", src, tmp_path / "out.asdf", "--gain", GAIN)
     assert r.returncode == 2 and "subtract it first" in r.stderr and "uncal.asdf" in r.stderr
     assert sorted(os.listdir(tmp_path)) == ["r0001_uncal.asdf"]
 
@@ -97,7 +100,7 @@ def test_ramp_resultants(cli, tmp_path, rng):
     model.data[bad] = -50.0
     src, out = tmp_path / "ramp.asdf", tmp_path / "ramp_ipc.asdf"
     model.save(src)
-    r = cli("decouple", src, out, "--gain", GAIN, "--refpix", 4)
+    r = cli("decouple", "--law", "donlon2018", src, out, "--gain", GAIN, "--refpix", 4)
     assert r.returncode == 0, r.stderr
     with rdm.open(out) as b:
         got = np.asarray(b.data, dtype=float)

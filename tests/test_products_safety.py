@@ -67,12 +67,12 @@ def test_swallowed_interrupt_does_not_commit(tmp_path):
 def test_not_converged_exits_nonzero(cli, tmp_path, rng):
     src, out = tmp_path / "in.fits", tmp_path / "out.fits"
     fits.writeto(src, couple_reference(rng.uniform(0, 60000, (20, 24))))
-    r = cli("decouple", src, out, "--max-iter", 2)
+    r = cli("decouple", "--law", "donlon2018", src, out, "--max-iter", 2)
     assert r.returncode == 3
     assert "in.fits" in r.stderr and "IPCCONV = F" in r.stderr
     h = fits.getheader(out)
     assert h["IPCCONV"] is False and h["IPCITER"] == 2
-    r = cli("decouple", src, tmp_path / "fixed.fits", "--max-iter", 2, "--tol", 0)
+    r = cli("decouple", "--law", "donlon2018", src, tmp_path / "fixed.fits", "--max-iter", 2, "--tol", 0)
     assert r.returncode == 0, r.stderr  # a fixed count asked for is not a failure
 
 
@@ -82,7 +82,7 @@ def test_workers_below_one_fail_at_once(cli, tmp_path, rng):
         paths.append(tmp_path / f"in{k}.fits")
         fits.writeto(paths[-1], rng.uniform(0, 1, (8, 8)))
     t0 = time.perf_counter()
-    r = cli("decouple", *paths, "-o", tmp_path, "--workers", -1)
+    r = cli("decouple", "--law", "donlon2018", *paths, "-o", tmp_path, "--workers", -1)
     assert r.returncode == 2 and "--workers -1" in r.stderr
     assert time.perf_counter() - t0 < 5
     assert sorted(os.listdir(tmp_path)) == ["in0.fits", "in1.fits"]
@@ -95,10 +95,10 @@ def test_two_inputs_and_overwrite(cli, tmp_path, rng):
     fits.writeto(a, rng.uniform(0, 60000, (12, 12)))
     fits.writeto(b, rng.uniform(0, 60000, (12, 12)))
     before = b.read_bytes()
-    r = cli("decouple", a, b, "--overwrite")
+    r = cli("decouple", "--law", "donlon2018", a, b, "--overwrite")
     assert r.returncode == 2 and "not written by ipc-taichi" in r.stderr and "--output" in r.stderr
     assert b.read_bytes() == before
-    r = cli("decouple", a, "--output", a, "--overwrite")
+    r = cli("decouple", "--law", "donlon2018", a, "--output", a, "--overwrite")
     assert r.returncode == 2 and "is the input" in r.stderr
 
 
@@ -109,9 +109,9 @@ def test_tile_on_scaled_integer_data(cli, tmp_path, rng):
     src = tmp_path / "raw.fits"
     fits.HDUList([fits.PrimaryHDU(), fits.ImageHDU(counts, name="SCI")]).writeto(src)
     assert fits.getheader(src, 1)["BZERO"] == 32768
-    r = cli("decouple", src, tmp_path / "whole.fits")
+    r = cli("decouple", "--law", "donlon2018", src, tmp_path / "whole.fits")
     assert r.returncode == 0, r.stderr
-    r = cli("decouple", src, tmp_path / "tiled.fits", "--tile", 16)
+    r = cli("decouple", "--law", "donlon2018", src, tmp_path / "tiled.fits", "--tile", 16)
     assert r.returncode == 0, r.stderr
     whole = fits.getdata(tmp_path / "whole.fits", "SCI")
     tiled = fits.getdata(tmp_path / "tiled.fits", "SCI")
@@ -125,7 +125,7 @@ def test_all_nan_frame_is_an_error(cli, tmp_path):
     fits.HDUList([fits.PrimaryHDU(), fits.ImageHDU(np.full((8, 8), np.nan),
                                                    name="SCI")]).writeto(src)
     for extra in ([], ["--tile", 4]):
-        r = cli("decouple", src, tmp_path / "out.fits", *extra)
+        r = cli("decouple", "--law", "donlon2018", src, tmp_path / "out.fits", *extra)
         assert r.returncode == 2
         assert "nan.fits[SCI]" in r.stderr and "no finite" in r.stderr
         assert sorted(os.listdir(tmp_path)) == ["nan.fits"]
@@ -135,7 +135,7 @@ def test_raw_integer_ramp_refused(cli, tmp_path):
     src = tmp_path / "jw_uncal.fits"
     fits.HDUList([fits.PrimaryHDU(), fits.ImageHDU(np.zeros((1, 2, 8, 8), np.uint16),
                                                    name="SCI")]).writeto(src)
-    r = cli("decouple", src, tmp_path / "out.fits")
+    r = cli("decouple", "--law", "donlon2018", src, tmp_path / "out.fits")
     assert r.returncode == 2 and "subtract the bias" in r.stderr and "[SCI]" in r.stderr
 
 
@@ -158,9 +158,9 @@ def test_quiet_silences_the_cuda_notice(tmp_path, rng):
 def test_correcting_twice_warns(cli, tmp_path, rng):
     src, once, twice = (tmp_path / f"{n}.fits" for n in ("in", "once", "twice"))
     fits.writeto(src, couple_reference(rng.uniform(0, 60000, (16, 16))))
-    assert cli("decouple", src, once).returncode == 0
+    assert cli("decouple", "--law", "donlon2018", src, once).returncode == 0
     assert fits.getheader(once)["S_IPC"] == "COMPLETE"
-    r = cli("decouple", once, twice)
+    r = cli("decouple", "--law", "donlon2018", once, twice)
     assert r.returncode == 0
     assert r.stderr.count("warning") == 1 and "already corrected" in r.stderr
     assert "once.fits" in r.stderr
@@ -176,7 +176,7 @@ def test_option_mistakes(cli, tmp_path, rng, args, message):
     args = [str(tmp_path / a) if a.endswith(".gz") else a for a in args]
     if "--output" not in args:
         args = [tmp_path / "out.fits"] + args
-    r = cli("decouple", src, *args)
+    r = cli("decouple", "--law", "donlon2018", src, *args)
     assert r.returncode == 2 and message in r.stderr and len(r.stderr.splitlines()) == 1
     assert sorted(os.listdir(tmp_path)) == ["in.fits"]
 
@@ -190,7 +190,7 @@ def test_bad_header_card_reported_once(cli, tmp_path):
     raw[end:end + 160] = (b"ODDCARD = 1.0.0 / not a number".ljust(80)
                           + b"END".ljust(80))
     src.write_bytes(bytes(raw))
-    r = cli("decouple", src, out)
+    r = cli("decouple", "--law", "donlon2018", src, out)
     assert r.returncode == 0, r.stderr
     assert r.stderr.count("Card 'ODDCARD' is not FITS standard") == 1
 

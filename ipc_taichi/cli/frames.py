@@ -25,9 +25,10 @@ import sys
 import time
 
 from ..errors import IPCInputError
-from ..products import couple_file, decouple_file, written_by_ipc_taichi
+from ..products import ProductOptions, couple_file, decouple_file, written_by_ipc_taichi
+from ..products.missions import DEFAULT_DQ
 from .options import (add_iteration_arguments, add_model_arguments, add_quiet_argument,
-                      add_runtime_arguments, model_from_args)
+                      add_runtime_arguments, model_from_args, model_is_explicit)
 
 __all__ = ["add_parsers", "run_couple", "run_decouple", "output_name"]
 
@@ -39,19 +40,32 @@ def _add_product_arguments(p):
     g.add_argument("--hdu", default=None,
                    help="science HDU: index, EXTNAME or EXTNAME,EXTVER (default: SCI, else the "
                         "first HDU with image data); DQ/PIXELDQ/GROUPDQ are refused")
-    g.add_argument("--dq-bits", default="DO_NOT_USE", metavar="FLAGS",
+    g.add_argument("--dq-bits", default=DEFAULT_DQ, metavar="FLAGS",
                    help="DQ/PIXELDQ/GROUPDQ flags of pixels left out (they keep their values "
-                        "and do not couple): names or integers, comma-separated (default "
-                        "DO_NOT_USE; 0 = none)")
+                        "and do not couple): names (the file's DQ_DEF first, then its "
+                        "mission's: JWST, HST, Roman) or integers, comma-separated (default "
+                        f"{DEFAULT_DQ}; 0 = none)")
+    g.add_argument("--saturation", type=float, default=None, metavar="LEVEL",
+                   help="pixels at or above LEVEL (data units) are left out like flagged ones "
+                        "(their charge is unknown)")
     g.add_argument("--refpix", type=int, default=None, metavar="N",
                    help="reference border of N pixels, never changed, zero-signal neighbours "
-                        "(default: the REFERENCE_PIXEL flags, else 4 for a JWST near-IR full "
-                        "frame, else 0)")
+                        "(default: the REFERENCE_PIXEL flags, else the observatory's: 4 for a "
+                        "JWST near-IR full frame or a subarray at the detector edge, 5 for a "
+                        "WFC3/IR _ima, else 0)")
     g.add_argument("--gain", default=None, metavar="E_PER_DN",
                    help="gain in e-/DN, a number or a gain image FITS file (default: the GAIN "
                         "keyword); needed for data in DN or DN/s")
     g.add_argument("--exptime", type=float, default=None, metavar="SECONDS",
-                   help="integration time of rate data (default: EFFINTTM)")
+                   help="integration time of rate data (default: the science HDU's SAMPTIME, "
+                        "else EFFINTTM, else EXPTIME; science header first, then primary)")
+    g.add_argument("--pedestal", default="auto", metavar="auto|none|E|FILE",
+                   help="charge on the node before the first read, electrons: auto (default: "
+                        "the zeroth read of a multi-read product, e.g. a WFC3/IR _ima), none, "
+                        "a number, or an image file; the law sees data + pedestal")
+    g.add_argument("--coadds", type=int, default=None, metavar="N",
+                   help="exposures summed in each frame (default: NCOADDS or NDIT, else 1); "
+                        "the law sees the charge of one")
     g.add_argument("--bunit", default=None,
                    help="units of the data, overriding BUNIT: electron, DN, DN/s, electron/s "
                         "(no BUNIT: electrons, the law's unit)")
@@ -112,13 +126,17 @@ def add_parsers(sub):
 
 
 def _product_options(args):
+    """The :class:`ProductOptions` of the command line."""
     dtype = None if args.output_dtype == "same" else args.output_dtype
     options = dict(hdu=args.hdu, overwrite=args.overwrite, arch=args.arch,
                    precision=args.precision, dq_bits=args.dq_bits, refpix=args.refpix,
-                   gain=args.gain, exptime=args.exptime, bunit=args.bunit, output_dtype=dtype)
+                   gain=args.gain, exptime=args.exptime, bunit=args.bunit, output_dtype=dtype,
+                   pedestal=args.pedestal, coadds=args.coadds, saturation=args.saturation,
+                   model_chosen=model_is_explicit(args),
+                   edge_chosen=args.edge is not None or args.model is not None)
     if hasattr(args, "max_iter"):
         options.update(max_iter=args.max_iter, tol=args.tol, tile=args.tile)
-    return options
+    return ProductOptions.from_kwargs(**options)
 
 
 def _single_pair(args, command):
@@ -150,7 +168,7 @@ def _report(summary, src):
 def run_couple(args):
     model = model_from_args(args)
     src, dst = _single_pair(args, "couple")
-    couple_file(src, dst, model=model, **_product_options(args))
+    couple_file(src, dst, model=model, options=_product_options(args))
     return 0
 
 
@@ -176,13 +194,18 @@ def run_decouple(args):
         raise IPCInputError(f"--tile {args.tile}: needs N >= 1")
     if args.output_dir is None:
         src, dst = _single_pair(args, "decouple")
-        summary = decouple_file(src, dst, model=model, progress=not args.quiet,
-                                **_product_options(args))
+        summary = decouple_file(src, dst, model=model,
+                                options=_product_options(args).replace(progress=not args.quiet))
         return _report(summary, src)
     if args.output is not None:
         raise IPCInputError("decouple: give either --output OUT.fits or -o OUTDIR")
-    if not os.path.isdir(args.output_dir):
-        raise IPCInputError(f"{args.output_dir}: output directory does not exist")
+    if os.path.exists(args.output_dir) and not os.path.isdir(args.output_dir):
+        raise IPCInputError(f"{args.output_dir}: exists and is not a directory")
+    try:
+        os.makedirs(args.output_dir, exist_ok=True)
+    except OSError as exc:
+        raise IPCInputError(f"{args.output_dir}: cannot create the output directory "
+                            f"({exc.strerror})") from None
     pairs = [(p, output_name(p, args.output_dir, args.suffix)) for p in args.paths]
     seen = {}
     for src, dst in pairs:
@@ -221,7 +244,7 @@ def _run_many(pairs, args, model):
         if bar is not None:
             bar.update(1)
 
-    options = dict(_product_options(args), model=model)
+    options = {"model": model, "options": _product_options(args)}
     since = time.time() - 1
     try:
         if len(pairs) == 1 and not args.scheduler:

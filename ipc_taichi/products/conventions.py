@@ -6,8 +6,9 @@ These are pure functions of arrays and header values; the readers and writers
 science array. The conventions (also in ``docs/products.md``):
 
 - **DQ.** A pixel whose data-quality word has any of the chosen bits set
-  (default ``DO_NOT_USE``) is not trusted: it keeps its value and neither
-  gives nor takes charge. Its neighbours are corrected for their other
+  (default ``DO_NOT_USE,SATURATED``; with ``--saturation LEVEL`` also every
+  pixel at or above LEVEL) is not trusted: it keeps its value and neither
+  gives nor takes charge (:func:`untrusted`, the one rule for every product). Its neighbours are corrected for their other
   neighbours only; their exchange with the masked pixel (about alpha times
   its charge) stays in them.
 - **Reference pixels** (the ``REFERENCE_PIXEL`` flag, or a border of ``N``
@@ -20,7 +21,14 @@ science array. The conventions (also in ``docs/products.md``):
 - **Units.** The coupling law is written in electrons of collected charge.
   ``BUNIT`` says what the numbers are: electrons pass through; DN are
   multiplied by the gain (e-/DN); rates (DN/s, e-/s) also by the integration
-  time. The result is converted back to the input's units.
+  time; coadded frames are divided by the number of exposures summed. The
+  result is converted back to the input's units. Pixels without a usable
+  per-pixel gain are left out (:func:`unusable_gain`).
+- **Pedestal.** The law is evaluated at the charge on the node, which
+  includes what was there before the first read (a zeroth read):
+  :func:`correct_frames` with ``pedestal``.
+- **Unphysical values** that nothing flags are reported
+  (:func:`warn_unphysical`): the law would spread them to their neighbours.
 """
 
 import re
@@ -31,47 +39,27 @@ import numpy as np
 
 from ..errors import ConvergenceWarning, DivergenceError, IPCInputError
 from ..interrupts import check_stop
+from .missions import DEFAULT_DQ, JWST_DQ_FLAGS, REFERENCE_PIXEL
 
-__all__ = ["ProductWarning", "JWST_DQ_FLAGS", "dq_flag_table", "parse_dq_bits", "science_region",
-           "region_model",
-           "charge_scale", "correct_frames", "Units", "RATE_UNITS", "CHARGE_UNITS"]
+__all__ = ["ProductWarning", "parse_dq_bits", "untrusted", "unusable_gain", "science_region",
+           "choose_edge", "charge_scale", "correct_frames", "Units", "RATE_UNITS",
+           "CHARGE_UNITS", "REFERENCE_PIXEL", "warn_unphysical", "PHYSICAL_RANGE"]
+
 
 class ProductWarning(UserWarning):
     """Something about a product the user should know (the run goes on)."""
 
 
-JWST_DQ_FLAGS = {
-    "GOOD": 0, "DO_NOT_USE": 1, "SATURATED": 2, "JUMP_DET": 4, "DROPOUT": 8,
-    "NON_SCIENCE": 2 ** 9, "DEAD": 2 ** 10, "HOT": 2 ** 11, "WARM": 2 ** 12,
-    "REFERENCE_PIXEL": 2 ** 31,
-}
-"""The JWST data-quality bits this module relies on, used when ``stdatamodels``
-(which has the full table) is not installed."""
+def parse_dq_bits(text, flags=None):
+    """``"DO_NOT_USE,HOT"``, ``"1,2048"``, ``"0"`` or ``"none"`` -> the bit mask (int).
 
-REFERENCE_PIXEL = JWST_DQ_FLAGS["REFERENCE_PIXEL"]
-
-
-def dq_flag_table(mission="jwst"):
-    """Flag name -> bit value: from ``stdatamodels`` (JWST) or
-    ``roman_datamodels`` (Roman) when installed, else :data:`JWST_DQ_FLAGS`."""
-    try:
-        if mission == "roman":
-            from roman_datamodels.dqflags import pixel
-        else:
-            from stdatamodels.jwst.datamodels.dqflags import pixel
-    except ImportError:
-        return dict(JWST_DQ_FLAGS)
-    return {str(k): int(v) for k, v in dict(
-        pixel.__members__ if hasattr(pixel, "__members__") else pixel).items()}
-
-
-def parse_dq_bits(text, mission="jwst"):
-    """``"DO_NOT_USE,HOT"``, ``"1,2048"``, ``"0"`` or ``"none"`` -> the bit mask (int)."""
+    ``flags``: name -> bit (a :class:`~ipc_taichi.products.missions.Mission`'s
+    ``dq_flags``: the file's ``DQ_DEF`` first, then its mission's names)."""
     if text is None:
-        text = "DO_NOT_USE"
+        text = DEFAULT_DQ
     if isinstance(text, (int, np.integer)):
         return int(text)
-    table = dq_flag_table(mission)
+    table = dict(JWST_DQ_FLAGS) if flags is None else flags
     bits = 0
     for item in str(text).replace("+", ",").split(","):
         item = item.strip()
@@ -85,6 +73,75 @@ def parse_dq_bits(text, mission="jwst"):
             raise IPCInputError(f"--dq-bits: unknown flag {item!r} (give integers or names such "
                                 f"as {', '.join(sorted(table)[:6])}, ...)")
     return bits
+
+
+def untrusted(flags, bits, shape, inside=None, values=None, saturation=None, gain=None):
+    """The masked-pixel rule, the same for every product and every window.
+
+    Parameters
+    ----------
+    flags : list of ndarray
+        Bit-flag arrays (DQ, PIXELDQ, GROUPDQ), each broadcastable to ``shape``.
+    bits : int
+        A pixel with any of these bits set is left out.
+    shape : tuple
+        The shape of the data (or of the window).
+    inside : ndarray of bool, optional
+        Reference-flagged pixels inside the science region.
+    values : ndarray, optional
+        The data: pixels at or above ``saturation`` are left out.
+    saturation : float, optional
+    gain : ndarray, optional
+        A per-pixel gain: pixels without a usable one are left out.
+
+    Returns
+    -------
+    ndarray of bool, or None when nothing is left out.
+    """
+    mask = None
+
+    def add(m):
+        nonlocal mask
+        m = np.broadcast_to(m, shape)
+        mask = np.array(m, dtype=bool) if mask is None else (mask | m)
+
+    for f in flags if bits else ():
+        add((np.asarray(f).astype(np.int64) & bits) != 0)
+    if inside is not None:
+        add(inside)
+    if saturation is not None and values is not None:
+        with np.errstate(invalid="ignore"):
+            add(np.asarray(values) >= saturation)
+    if gain is not None and np.ndim(gain) == 2:
+        add(unusable_gain(gain))
+    return mask
+
+
+def unusable_gain(gain):
+    """Pixels whose gain cannot convert their data to charge (not finite, <= 0)."""
+    g = np.asarray(gain, dtype=np.float64)
+    return ~(np.isfinite(g) & (g > 0))
+
+
+PHYSICAL_RANGE = (-2e4, 1e6)
+"""Electrons a pixel of one exposure can plausibly hold (an H2RG/H4RG node holds
+about 1e5; a few 1e4 below zero is noise and bias residue). Unflagged values
+outside it are reported: the law would spread them to the neighbours."""
+
+
+def warn_unphysical(charge, mask, where):
+    """Warn (once per frame) about unflagged pixels far outside :data:`PHYSICAL_RANGE`."""
+    with np.errstate(invalid="ignore"):
+        bad = (charge < PHYSICAL_RANGE[0]) | (charge > PHYSICAL_RANGE[1])
+    if mask is not None:
+        bad &= ~mask
+    n = int(bad.sum())
+    if n:
+        y, x = np.argwhere(bad)[0]
+        warnings.warn(f"{where}: {n} unflagged pixel(s) hold charge outside "
+                      f"{PHYSICAL_RANGE[0]:g}..{PHYSICAL_RANGE[1]:g} e- (first at y={y}, x={x}: "
+                      f"{charge[y, x]:.4g} e-); flag them in DQ, or give --saturation LEVEL",
+                      ProductWarning, stacklevel=3)
 
 
 def science_region(shape, refpix=None, reference=None):
@@ -125,14 +182,34 @@ def science_region(shape, refpix=None, reference=None):
     return region, (inside if inside.any() else None)
 
 
-def region_model(model, region, shape):
-    """The model for the science region: the ``zero`` edge rule where the
-    region leaves a reference border (reference pixels are zero-signal
-    neighbours), else ``model`` itself."""
+def choose_edge(model, region, shape, detector_product=False, edge_chosen=True):
+    """The model for the science region and why its edge rule was chosen.
+
+    Where the region leaves a reference border the edge is ``zero`` whatever
+    was asked: reference pixels collect no photo-charge, they are zero-signal
+    neighbours. A frame with no reference border, from a detector product
+    (a cut-out or a subarray: beyond its edge lie pixels holding charge like
+    its own), gets ``isolated`` unless the caller chose the edge: ``zero``
+    would invent a step at the edge. A plain image keeps the model's rule (the
+    paper's ``zero`` by default).
+
+    Returns
+    -------
+    model : CouplingModel
+    reason : str
+    """
     from ..model import CouplingModel
 
     whole = (region[0].stop - region[0].start, region[1].stop - region[1].start) == tuple(shape)
-    return model if whole else CouplingModel(model.law, model.geometry, "zero")
+    if not whole:
+        return (CouplingModel(model.law, model.geometry, "zero"),
+                "reference border: zero-signal neighbours")
+    if edge_chosen:
+        return model, "chosen"
+    if detector_product:
+        return (CouplingModel(model.law, model.geometry, "isolated"),
+                "no reference border (cut-out or subarray)")
+    return model, "default (plain image)"
 
 
 CHARGE_UNITS = ("electron", "electrons", "e", "e-", "electron(s)", "el")
@@ -190,8 +267,9 @@ def parse_units(bunit, label):
                         "or DN/s (with --gain E_PER_DN, and --exptime SECONDS for rates)")
 
 
-def charge_scale(units, gain, exptime, label):
-    """Electrons per unit of the data: 1, gain, gain*exptime or exptime.
+def charge_scale(units, gain, exptime, label, time_source="EFFINTTM", coadds=1):
+    """Electrons per unit of the data, per exposure: 1, gain, gain*exptime or
+    exptime, divided by the number of coadded exposures.
 
     Parameters
     ----------
@@ -202,6 +280,10 @@ def charge_scale(units, gain, exptime, label):
         Integration time in seconds (rates only).
     label : str
         The file and HDU, for error messages.
+    time_source : str
+        Where the integration time is looked for (for the error message).
+    coadds : int
+        Exposures summed in each frame: the law sees the charge of one.
 
     Returns
     -------
@@ -226,12 +308,18 @@ def charge_scale(units, gain, exptime, label):
     if units.rate:
         if exptime is None:
             raise IPCInputError(f"{label}: a rate in {units.text} needs the integration time: "
-                                "give --exptime SECONDS or an EFFINTTM keyword")
+                                f"give --exptime SECONDS or {time_source}")
         t = float(exptime)
         if not (np.isfinite(t) and t > 0):
             raise IPCInputError(f"{label}: integration time must be > 0 s, got {exptime!r}")
         scale = scale * t
         parts.append(f"integration time {t:g} s")
+    if coadds is not None and int(coadds) != 1:
+        n = int(coadds)
+        if n < 1:
+            raise IPCInputError(f"{label}: coadds must be >= 1, got {coadds!r}")
+        scale = scale / n
+        parts.append(f"divided by {n} coadded exposures")
     text = (f"{units.text or 'electrons (no BUNIT)'} -> electrons"
             + (f" with {', '.join(parts)}" if parts else ""))
     return scale, text
@@ -254,7 +342,8 @@ class named:
 
 
 def correct_frames(data, operation, model, *, mask=None, region=None, scale=1.0,
-                   out=None, max_iter=20, tol=1e-5, arch=None, precision=None, label="data"):
+                   out=None, max_iter=20, tol=1e-5, arch=None, precision=None, label="data",
+                   pedestal=None):
     """Couple or decouple every 2-D frame of ``data`` by the product rules.
 
     The pure correction function under every product reader/writer.
@@ -265,15 +354,16 @@ def correct_frames(data, operation, model, *, mask=None, region=None, scale=1.0,
         The science array in its own units (any real dtype).
     operation : {"couple", "decouple"}
     model : CouplingModel
-        Its edge rule is replaced by ``zero`` when ``region`` leaves a
-        reference border (reference pixels are zero-signal neighbours).
+        The model of the science region (its edge rule chosen by
+        :func:`choose_edge`).
     mask : ndarray of bool, optional
         Untrusted pixels (True), broadcastable to ``data``: they keep their
-        values and do not couple.
+        values and do not couple (see :func:`untrusted`).
     region : (slice, slice), optional
         The science region inside the reference pixels (default: the frame).
     scale : float or ndarray (ny, nx)
-        Electrons per data unit (see :func:`charge_scale`).
+        Electrons per data unit (see :func:`charge_scale`); pixels without a
+        usable per-pixel gain are left out.
     out : ndarray, optional
         Where to write (same shape as ``data``; default: a float64 copy).
         Pixels outside ``region`` and masked pixels are copied from ``data``.
@@ -281,20 +371,22 @@ def correct_frames(data, operation, model, *, mask=None, region=None, scale=1.0,
         As for :func:`ipc_taichi.decouple`.
     label : str
         The file and HDU, for error messages.
+    pedestal : ndarray (ny, nx), optional
+        Charge on the node before the first read, in electrons, as measured
+        (e.g. a zeroth read). The law sees ``data + pedestal``: decouple gives
+        ``D(M + P) - D(P)``, couple ``C(S + P) - C(P)``, so the frame keeps its
+        meaning (charge since the pedestal) while alpha is evaluated at the
+        charge really on the node.
 
     Returns
     -------
     out : ndarray
     infos : list of DecoupleInfo (decouple) or of None (couple), one per frame.
     """
-    from ..coupling import couple
-    from ..decoupling import decouple
-
     data = np.asarray(data)
     shape = data.shape
     ny, nx = shape[-2:]
     region = region or (slice(0, ny), slice(0, nx))
-    inner_model = region_model(model, region, (ny, nx))
     frames = data.reshape((-1, ny, nx))
     masks = None if mask is None else np.broadcast_to(mask, shape).reshape((-1, ny, nx))
     if out is None:
@@ -304,36 +396,51 @@ def correct_frames(data, operation, model, *, mask=None, region=None, scale=1.0,
     flat_out = out.reshape((-1, ny, nx))
     s = np.asarray(scale, dtype=np.float64)
     s_in = s[region] if s.ndim == 2 else s
+    base = None if pedestal is None else np.asarray(pedestal, dtype=np.float64)[region]
+    settings = dict(operation=operation, model=model, max_iter=max_iter, tol=tol, arch=arch,
+                    precision=precision)
+    cached = {}
     infos = []
     for k in range(frames.shape[0]):
         check_stop()  # a SIGINT/SIGTERM swallowed by a library stops the run here
         where = f"{label} frame {k}" if frames.shape[0] > 1 else label
         measured = frames[k][region].astype(np.float64) * s_in
-        m = None if masks is None else np.array(masks[k][region], dtype=bool)
-        if s.ndim == 2:  # pixels without a usable gain cannot be converted
-            bad_gain = ~(np.isfinite(s_in) & (s_in > 0))
-            if bad_gain.any():
-                m = bad_gain if m is None else (m | bad_gain)
+        m = untrusted([], 0, measured.shape,
+                      None if masks is None else masks[k][region],
+                      gain=s_in if s.ndim == 2 else None)
         good = np.isfinite(measured) if m is None else (np.isfinite(measured) & ~m)
         if not good.any():
             raise IPCInputError(f"{where}: no finite, unmasked pixel to {operation} "
                                 "(all NaN or flagged)")
-        with warnings.catch_warnings(), named(where):
-            warnings.simplefilter("ignore", ConvergenceWarning)  # reported per frame by callers
-            if operation == "decouple":
-                result, info = decouple(measured, model=inner_model, mask=m, max_iter=max_iter,
-                                        tol=tol, arch=arch, precision=precision,
-                                        full_output=True)
-            else:
-                result, info = couple(measured, model=inner_model, mask=m, arch=arch,
-                                      precision=precision), None
-        with np.errstate(divide="ignore", invalid="ignore"):  # pixels without a gain: masked
-            result = np.ma.getdata(result) / s_in
-        target = flat_out[k][region]
-        keep = None if m is None else m
-        if keep is None:
-            target[...] = result
+        if base is None:
+            warn_unphysical(measured, m, where)
+            result, info = _run(measured, m, where, **settings)
         else:
-            target[...] = np.where(keep, frames[k][region], result)
+            warn_unphysical(measured + base, m, where)
+            key = None if m is None else m.tobytes()
+            if key not in cached:  # the pedestal through the same law, once per mask
+                cached[key] = _run(base, m, where, **settings)[0]
+            result, info = _run(measured + base, m, where, **settings)
+            result = result - cached[key]
+        with np.errstate(divide="ignore", invalid="ignore"):  # pixels without a gain: masked
+            result = result / s_in
+        target = flat_out[k][region]
+        target[...] = result if m is None else np.where(m, frames[k][region], result)
         infos.append(info)
     return out, infos
+
+
+def _run(charge, mask, where, operation, model, max_iter, tol, arch, precision):
+    """One frame in electrons through the decoupler or the forward model."""
+    from ..coupling import couple
+    from ..decoupling import decouple
+
+    with warnings.catch_warnings(), named(where):
+        warnings.simplefilter("ignore", ConvergenceWarning)  # reported per frame by callers
+        if operation == "decouple":
+            result, info = decouple(charge, model=model, mask=mask, max_iter=max_iter,
+                                    tol=tol, arch=arch, precision=precision, full_output=True)
+        else:
+            result, info = couple(charge, model=model, mask=mask, arch=arch,
+                                  precision=precision), None
+    return np.array(np.ma.getdata(result), dtype=np.float64), info

@@ -1,33 +1,69 @@
 """One entry point for any product file: FITS or Roman ASDF, by its content."""
 
+import warnings
+
 from ..model import CouplingModel
 from .fits import process_fits
-from .roman import is_asdf, process_asdf
+from .missions import is_asdf
+from .options import ProductOptions
+from .roman import process_asdf
 
-__all__ = ["process_product", "decouple_file", "couple_file"]
+__all__ = ["process_product", "decouple_file", "couple_file", "written_by_ipc_taichi"]
 
 
-def process_product(input_path, output_path, operation="decouple", **options):
+def process_product(input_path, output_path, operation="decouple", model=None, options=None,
+                    **kwargs):
     """Couple or decouple a product file: Roman ASDF
     (:func:`~ipc_taichi.products.roman.process_asdf`) or FITS
-    (:func:`~ipc_taichi.products.fits.process_fits`); same options, same summary."""
+    (:func:`~ipc_taichi.products.fits.process_fits`); same options
+    (:class:`~ipc_taichi.products.options.ProductOptions`), same summary."""
     run = process_asdf if is_asdf(input_path) else process_fits
-    return run(input_path, output_path, operation, **options)
+    return run(input_path, output_path, operation, model=model,
+               options=ProductOptions.from_kwargs(options, **kwargs))
 
 
-def decouple_file(input_path, output_path, law="donlon2018", geometry=None, edge="zero",
-                  model=None, **options):
+def decouple_file(input_path, output_path, law=None, geometry=None, edge=None, model=None,
+                  options=None, **kwargs):
     """Decouple one product file; the per-file task of
-    :func:`ipc_taichi.cluster.decouple_files`. The model is ``model`` or
-    ``law``/``geometry``/``edge``. Returns a small picklable summary
-    ``{"iterations", "converged", "frames"}``."""
-    model = CouplingModel.resolve(model) if model is not None else \
-        CouplingModel.resolve(law, geometry, edge)
-    res = process_product(input_path, output_path, "decouple", model=model, **options)
+    :func:`ipc_taichi.cluster.decouple_files`. The model is ``model`` (a
+    CouplingModel or a model file) or ``law``/``geometry``/``edge``; giving
+    both is refused, as :func:`ipc_taichi.decouple` does; giving neither means
+    the paper's law (refused on instrument products). Returns a small
+    picklable summary ``{"iterations", "converged", "frames"}``."""
+    if model is not None and (law, geometry, edge) != (None, None, None):
+        raise ValueError("give either model= or law=/geometry=/edge=, not both")
+    if model is None and law is not None:
+        model = CouplingModel.resolve(law, geometry, edge or "zero")
+        if edge is None:
+            options = ProductOptions.from_kwargs(options, edge_chosen=False)
+    elif model is None and (geometry, edge) != (None, None):
+        raise ValueError("decouple_file: geometry= and edge= need law= (or give model=)")
+    res = process_product(input_path, output_path, "decouple", model=model, options=options,
+                          **kwargs)
     return {"iterations": res["iterations"], "converged": res["converged"],
             "frames": res["frames"]}
 
 
-def couple_file(input_path, output_path, model=None, **options):
+def couple_file(input_path, output_path, model=None, options=None, **kwargs):
     """Couple one product file (:func:`process_product` with ``operation="couple"``)."""
-    return process_product(input_path, output_path, "couple", model=model, **options)
+    return process_product(input_path, output_path, "couple", model=model, options=options,
+                           **kwargs)
+
+
+def written_by_ipc_taichi(path):
+    """Whether ``path`` is a product this tool wrote: a FITS file whose primary
+    header has ``IPCOP``, or an ASDF file with ``meta.ipc_taichi``."""
+    from astropy.io import fits
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            if is_asdf(path):
+                import asdf
+
+                with asdf.open(path, lazy_load=True, memmap=False) as af:
+                    meta = af.tree.get("roman", {}).get("meta", {})
+                    return "ipc_taichi" in meta
+            return "IPCOP" in fits.getheader(path, 0)
+    except Exception:
+        return False

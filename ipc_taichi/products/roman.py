@@ -27,25 +27,18 @@ import warnings
 
 import numpy as np
 
-from .. import __version__, iteration
 from ..errors import IPCInputError
 from ..fitsio import check_output_path
 from ..interrupts import check_stop
-from ..model import CouplingModel
 from . import conventions as cv
+from . import missions
+from .gain import read_gain
+from .options import ProductOptions
+from .provenance import Provenance
 
-__all__ = ["process_asdf", "is_asdf"]
+__all__ = ["process_asdf"]
 
 ROMAN_FULL_FRAME = (4096, 4096)
-
-
-def is_asdf(path):
-    """Whether ``path`` names an ASDF file (by its first bytes, else its name)."""
-    try:
-        with open(path, "rb") as f:
-            return f.read(5) == b"#ASDF"
-    except OSError:
-        return str(path).lower().endswith(".asdf")
 
 
 def _exposure_time(meta):
@@ -66,110 +59,127 @@ def _units(dm, ramp):
     return "MJy/sr" if flux == "COMPLETE" else "DN/s"
 
 
-def process_asdf(input_path, output_path, operation="decouple", *, model=None, overwrite=False,
-                 max_iter=iteration.MAX_ITER, tol=iteration.TOL, arch=None, precision=None,
-                 dq_bits="DO_NOT_USE", refpix=None, gain=None, exptime=None, bunit=None,
-                 output_dtype=None, hdu=None, tile=None, progress=False):
+def process_asdf(input_path, output_path, operation="decouple", *, model=None, options=None,
+                 **kwargs):
     """Couple or decouple the science array of a Roman ASDF product.
 
     Parameters are those of :func:`ipc_taichi.products.process_fits`
     (``hdu`` and ``tile`` do not apply and are refused; ``progress`` is
     ignored). Returns the same summary dict.
     """
+    from .. import iteration
+    from .fits import resolve_model
+
+    options = ProductOptions.from_kwargs(options, **kwargs)
     try:
         import roman_datamodels.datamodels as rdm
     except ImportError:
         raise IPCInputError(f"{input_path}: Roman ASDF needs roman_datamodels: "
                             "pip install 'ipc_taichi[roman]'") from None
-    if tile:
+    if options.tile:
         raise IPCInputError(f"{input_path}: --tile is for FITS products")
-    if hdu is not None:
+    if options.hdu is not None:
         raise IPCInputError(f"{input_path}: --hdu is for FITS products")
-    model = CouplingModel.resolve(model if model is not None else "donlon2018")
-    max_iter, tol = iteration.check_arguments(max_iter, tol)
-    check_output_path(output_path, overwrite)
+    model, options = resolve_model(model, options)
+    max_iter, tol = iteration.check_arguments(options.max_iter, options.tol)
+    check_output_path(output_path, options.overwrite)
     if not os.path.exists(input_path):
         raise IPCInputError(f"{input_path}: no such file")
     if os.path.exists(output_path) and os.path.samefile(input_path, output_path):
         raise IPCInputError(f"{output_path}: is the input; write to another file")
+    label = f"{input_path}[data]"
+    mission = missions.roman_mission()
+    missions.check_model_chosen(mission, options.model_chosen, label)
     try:
-        dm = rdm.open(input_path)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            dm = rdm.open(input_path)
     except Exception as exc:
         raise IPCInputError(f"{input_path}: not a readable Roman datamodel "
                             f"({type(exc).__name__})") from None
     with dm:
         kind = type(dm).__name__
-        label = f"{input_path}[data]"
         if kind == "ScienceRawModel":
             raise IPCInputError(f"{label}: raw level-1 resultants (uint16) hold the bias; "
                                 "subtract it first (romancal through the refpix step) and "
                                 "decouple that RampModel")
         if kind not in ("ImageModel", "RampModel"):
             raise IPCInputError(f"{label}: a {kind}; give a level-2 ImageModel or a RampModel")
-        data = np.asarray(dm.data)
+        ramp = kind == "RampModel"
+        names = ("pixeldq", "groupdq") if ramp else ("dq",)
+        try:  # a truncated file fails here, when its blocks are read
+            data = np.asarray(dm.data)
+            flags = [np.asarray(dm[name]) for name in names if name in dm and dm[name] is not None]
+        except Exception as exc:
+            raise IPCInputError(f"{input_path}: its arrays cannot be read, the file may be "
+                                f"truncated ({type(exc).__name__})") from None
         if data.dtype.kind != "f":
             raise IPCInputError(f"{label}: integer data ({data.dtype}); subtract the bias first")
-        ramp = kind == "RampModel"
-        units = cv.parse_units(bunit if bunit is not None else _units(dm, ramp), label)
-        if gain is not None and not units.needs_gain:
+        units = cv.parse_units(options.bunit if options.bunit is not None
+                               else _units(dm, ramp), label)
+        if options.gain is not None and not units.needs_gain:
             raise IPCInputError(f"{label}: a gain was given but the data are in {units.text}; "
                                 "give --bunit DN or DN/s if they are not")
         if "ipc_taichi" in dm.meta and dm.meta["ipc_taichi"].get("operation") == "decouple":
             warnings.warn(f"{label}: IPC was already corrected by ipc_taichi; correcting again",
                           cv.ProductWarning, stacklevel=2)
+        exptime = options.exptime if options.exptime is not None else _exposure_time(dm.meta)
         scale, units_text = cv.charge_scale(
-            units, _gain(gain, data.shape[-2:]),
-            exptime if exptime is not None else _exposure_time(dm.meta), label)
-        bits = cv.parse_dq_bits(dq_bits, mission="roman") & ~cv.REFERENCE_PIXEL
-        flags = [np.asarray(dm[name]) for name in (("pixeldq", "groupdq") if ramp else ("dq",))
-                 if name in dm and dm[name] is not None]
-        for name, f in zip(("pixeldq", "groupdq") if ramp else ("dq",), flags):
+            units, read_gain(options.gain, data.shape[-2:]), exptime, label,
+            time_source="meta.exposure.effective_exposure_time",
+            coadds=options.coadds or 1)
+        bits = cv.parse_dq_bits(options.dq_bits, mission.dq_flags) & ~cv.REFERENCE_PIXEL
+        for name, f in zip(names, flags):
             if f.shape != data.shape[data.ndim - f.ndim:]:
                 raise IPCInputError(f"{input_path}[{name}]: shape {f.shape} does not match "
                                     f"the data {data.shape}")
         first = flags[0].reshape((-1,) + data.shape[-2:])[0].astype(np.int64) if flags else None
         reference = None if first is None else (first & cv.REFERENCE_PIXEL) != 0
+        refpix = options.refpix
         if refpix is None and (reference is None or not reference.any()):
             refpix = 4 if ramp and data.shape[-2:] == ROMAN_FULL_FRAME else None
         try:
             region, inside = cv.science_region(data.shape[-2:], refpix, reference)
         except IPCInputError as exc:
             raise IPCInputError(f"{label}: {exc}") from None
-        mask = None
-        if bits or inside is not None:
-            mask = np.zeros(data.shape, dtype=bool)
-            for f in flags if bits else ():
-                mask |= (f.astype(np.int64) & bits) != 0
-            if inside is not None:
-                mask[(Ellipsis,) + region] |= inside
-        if output_dtype not in (None, "same") and np.dtype(output_dtype) != data.dtype:
+        full_inside = None
+        if inside is not None:
+            full_inside = np.zeros(data.shape[-2:], dtype=bool)
+            full_inside[region] = inside
+        mask = cv.untrusted(flags, bits, data.shape, full_inside, values=data,
+                            saturation=options.saturation)
+        if options.output_dtype not in (None, "same") and \
+                np.dtype(options.output_dtype) != data.dtype:
             raise IPCInputError(f"{label}: a Roman product keeps its schema's dtype "
                                 f"({data.dtype})")
-        out_dtype = data.dtype
-        out = np.empty(data.shape, dtype=out_dtype)
-        _, infos = cv.correct_frames(data, operation, model, mask=mask, region=region,
+        inner, edge_reason = cv.choose_edge(model, region, data.shape[-2:], True,
+                                            options.edge_chosen)
+        if data.shape[-2:] == (4088, 4088) and not options.edge_chosen:
+            # a level-2 image is the science area with its 4-pixel reference border
+            # stored apart: beyond its edge lie reference pixels, zero-signal neighbours
+            inner = type(model)(model.law, model.geometry, "zero")
+            edge_reason = "reference border stored apart: zero-signal neighbours"
+        out = np.empty(data.shape, dtype=data.dtype)
+        _, infos = cv.correct_frames(data, operation, inner, mask=mask, region=region,
                                      scale=scale, out=out, max_iter=max_iter, tol=tol,
-                                     arch=arch, precision=precision, label=label)
+                                     arch=options.arch, precision=options.precision,
+                                     label=label)
         dm.data = out
         from .. import runtime
 
         rt = runtime.current()
-        record = {"version": __version__, "operation": operation,
-                  "law": model.law.name, "model": model.describe(), "units": units_text,
-                  "dq_bits": int(bits),
-                  "science_region": [[region[0].start, region[0].stop],
-                                     [region[1].start, region[1].stop]],
-                  "arch": rt.arch if rt else "", "precision": rt.precision if rt else ""}
-        if operation == "decouple":
-            record.update(S_IPC="COMPLETE", iterations=[int(i.iterations) for i in infos],
-                          converged=bool(all(i.converged for i in infos)), tol=float(tol),
-                          max_iter=int(max_iter))
-        dm.meta["ipc_taichi"] = record
+        prov = Provenance(operation, inner, edge_reason, bits, "none", options.coadds or 1,
+                          rt.arch if rt else "", rt.precision if rt else "", tol, max_iter)
+        prov.add_hdu(0, "data", label, region, units_text, exptime if units.rate else 0.0,
+                     len(infos))
+        prov.infos[0] = infos
+        dm.meta["ipc_taichi"] = prov.record()
         if ramp and operation == "decouple" and "cal_step" in dm.meta:
-            dm.meta.cal_step["ipc"] = "COMPLETE"
-        _save(dm, output_path, overwrite)
+            dm.meta.cal_step["ipc"] = "COMPLETE" if prov.status() == "COMPLETE" else "FAILED"
+        _save(dm, output_path, options.overwrite)
     converged = None if operation == "couple" or tol == 0 else all(i.converged for i in infos)
     return {"output": output_path, "label": label, "frames": len(infos), "infos": infos,
+            "hdus": [label],
             "iterations": max(i.iterations for i in infos) if operation == "decouple" else 0,
             "converged": converged}
 
@@ -181,31 +191,11 @@ def _save(dm, output_path, overwrite):
     parent = os.path.dirname(os.path.abspath(output_path))
     with tempfile.TemporaryDirectory(prefix=".tmp-", dir=parent) as tmpdir:
         tmp = os.path.join(tmpdir, os.path.basename(output_path))
-        dm.save(tmp)
+        try:
+            dm.save(tmp)
+        except OSError as exc:
+            raise IPCInputError(f"{output_path}: cannot be written "
+                                f"({exc.strerror or type(exc).__name__})") from None
         check_stop()  # a swallowed SIGINT/SIGTERM: do not commit
         check_output_path(output_path, overwrite)  # it may have appeared meanwhile
         os.replace(tmp, output_path)
-
-
-def _gain(gain, shape2d):
-    """``--gain`` as a number, or a per-pixel gain image from a FITS or ASDF file."""
-    if gain is None or isinstance(gain, (int, float, np.floating, np.integer, np.ndarray)):
-        return gain
-    try:
-        return float(gain)
-    except ValueError:
-        pass
-    if is_asdf(gain):
-        import roman_datamodels.datamodels as rdm
-
-        with rdm.open(gain) as ref:
-            image = np.asarray(ref.data, dtype=np.float64)
-        if image.shape == ROMAN_FULL_FRAME and shape2d == (4088, 4088):
-            image = image[4:-4, 4:-4]  # a full-frame gain file for a level-2 image
-        if image.shape != shape2d:
-            raise IPCInputError(f"{gain}: gain image {image.shape} does not match the data "
-                                f"{shape2d}")
-        return image
-    from .fits import _read_gain
-
-    return _read_gain(gain, shape2d)

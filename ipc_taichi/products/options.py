@@ -1,0 +1,108 @@
+"""The options of a product run, as one value.
+
+:class:`ProductOptions` is what the command line, the Dask workers
+(:mod:`ipc_taichi.cluster`) and the library hand to
+:func:`ipc_taichi.products.process_product`: frozen and picklable, checked
+once when it is built (:meth:`ProductOptions.from_kwargs` refuses an unknown
+name in one line).
+"""
+
+import dataclasses
+from dataclasses import dataclass
+
+from .. import iteration
+from ..errors import IPCInputError
+from .missions import DEFAULT_DQ
+
+__all__ = ["ProductOptions"]
+
+
+@dataclass(frozen=True)
+class ProductOptions:
+    """How a product is read, corrected and written.
+
+    Attributes
+    ----------
+    hdu : int, str or (str, int), optional
+        The science HDU (FITS); default: every ``SCI`` HDU (every read of a
+        multi-read product), else the first image HDU with data.
+    overwrite : bool
+        Replace an existing output.
+    max_iter, tol, arch, precision :
+        As for :func:`ipc_taichi.decouple`.
+    tile : int, optional
+        Decouple tile by tile through memory maps (FITS, decouple only).
+    progress : bool
+        A progress bar on a terminal (tiled runs).
+    dq_bits : str or int
+        Flags of pixels left out (names of the product's mission, its
+        ``DQ_DEF`` first, or integers; default ``DO_NOT_USE,SATURATED``).
+    refpix : int, optional
+        Width of the reference border; default: the flags, else the
+        observatory's convention (:mod:`ipc_taichi.products.missions`).
+    gain : float, str or ndarray, optional
+        e-/DN: a number or a gain image file (default: the GAIN keyword).
+    exptime : float, optional
+        Integration time of a rate, seconds (default: the keywords, see
+        :data:`ipc_taichi.products.missions.TIME_KEYWORDS`).
+    bunit : str, optional
+        Override the file's units.
+    output_dtype : {None, "float32", "float64"}
+    pedestal : str or float, optional
+        Charge on the node before the first read, electrons: ``"auto"`` (the
+        zeroth read of a multi-read product), ``"none"``, a number or an
+        image file.
+    coadds : int, optional
+        Exposures summed in each frame (default: ``NCOADDS``/``NDIT``, else 1).
+    saturation : float, optional
+        Pixels at or above this value (data units) are left out like flagged ones.
+    model_chosen : bool
+        The caller chose the law (``--law``/``--model``, or a model passed to
+        the library); False: the paper's law by default, refused on instrument
+        products.
+    edge_chosen : bool
+        The caller chose the edge rule; False: chosen from the product.
+    """
+
+    hdu: object = None
+    overwrite: bool = False
+    max_iter: int = iteration.MAX_ITER
+    tol: float = iteration.TOL
+    arch: str = None
+    precision: str = None
+    tile: int = None
+    progress: bool = False
+    dq_bits: object = DEFAULT_DQ
+    refpix: int = None
+    gain: object = None
+    exptime: float = None
+    bunit: str = None
+    output_dtype: str = None
+    pedestal: object = "auto"
+    coadds: int = None
+    saturation: float = None
+    model_chosen: bool = True
+    edge_chosen: bool = True
+
+    @classmethod
+    def from_kwargs(cls, options=None, **kwargs):
+        """``options`` (a ProductOptions, a dict or None) updated by ``kwargs``;
+        an unknown name is refused in one line."""
+        if isinstance(options, cls):
+            base = dataclasses.asdict(options)
+        else:
+            base = dict(options or {})
+        base.update(kwargs)
+        names = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(base) - names)
+        if unknown:
+            raise IPCInputError(f"unknown product option(s): {', '.join(unknown)}")
+        if base.get("dq_bits") is None:
+            base["dq_bits"] = DEFAULT_DQ
+        if base.get("output_dtype") == "same":
+            base["output_dtype"] = None
+        return cls(**base)
+
+    def replace(self, **changes):
+        """A copy with ``changes``."""
+        return dataclasses.replace(self, **changes)

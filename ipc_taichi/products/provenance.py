@@ -1,0 +1,178 @@
+"""What a product records about its correction: IPC keywords, HISTORY, S_IPC.
+
+One place for the record written into FITS headers and Roman ``meta``:
+
+- the primary header holds the run: ``S_IPC`` (the JWST step-status
+  keyword), ``IPCOP``, the model (``IPCLAW``, ``IPCGEOM``, ``IPCEDGE`` and
+  ``IPCEDGER``, why that edge rule), ``IPCNHDU`` (science HDUs changed),
+  ``IPCHDU`` (the first, by index and name), ``IPCDQBIT``, ``IPCPED`` (the
+  pedestal), ``IPCCOADD``, ``IPCARCH``, ``IPCPREC``, and for decouple
+  ``IPCITER``, ``IPCCONV``, ``IPCTOL``, ``IPCMAXIT``; HISTORY lines (the
+  model, each HDU's units, one line per frame);
+- each changed science HDU holds its own: ``IPCOP``, ``IPCHDU``,
+  ``IPCREFPX`` (the science region as a 1-based FITS section
+  ``[x1:x2,y1:y2]``), ``IPCTIME`` (seconds; 0 when not a rate), and for
+  decouple ``IPCITER``, ``IPCCONV``.
+
+``S_IPC`` is written last, after the work (a killed run's temporary file
+says ``PENDING``): ``COMPLETE`` when every science HDU of the product is
+decoupled and met the stopping rule (or ran a fixed count, ``tol = 0``),
+``FAILED`` when the stopping rule was not met (JWST's own value; ``IPCCONV``
+says so too), ``PARTIAL`` when ``--hdu`` left other science HDUs uncorrected.
+"""
+
+import datetime
+
+from .. import __version__
+
+__all__ = ["Provenance", "status", "section"]
+
+PENDING = "PENDING"
+
+
+def _now():
+    return datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
+
+
+def section(region):
+    """``(slice y, slice x)`` (0-based, stop exclusive) -> ``"[x1:x2,y1:y2]"``
+    (FITS: 1-based, inclusive, x first)."""
+    ys, xs = region
+    return f"[{xs.start + 1}:{xs.stop},{ys.start + 1}:{ys.stop}]"
+
+
+def status(infos_by_hdu, all_science, tol):
+    """The value of ``S_IPC`` for a decouple run (see the module's text)."""
+    infos = [i for infos in infos_by_hdu.values() for i in infos]
+    if tol != 0 and not all(i.converged for i in infos):
+        return "FAILED"
+    return "COMPLETE" if all_science else "PARTIAL"
+
+
+class Provenance:
+    """The record of one run on one product (FITS headers or a Roman dict).
+
+    The header cards are the same before and after the work (values change,
+    the count does not), so a header written before the data streams into
+    the file keeps its size when it is rewritten at the end.
+    """
+
+    def __init__(self, operation, model, edge_reason, bits, pedestal_text, coadds, arch,
+                 precision, tol, max_iter, tile=None, all_science=True):
+        self.operation = operation
+        self.model = model
+        self.edge_reason = edge_reason
+        self.bits = int(bits)
+        self.pedestal_text = pedestal_text
+        self.coadds = int(coadds)
+        self.arch, self.precision = arch, precision
+        self.tol, self.max_iter, self.tile = tol, max_iter, tile
+        self.all_science = all_science
+        self.hdus = {}  # index -> dict(name, region, units, exptime, frames)
+        self.infos = {}  # index -> list of DecoupleInfo (None before the work)
+        self.started = _now()
+
+    def add_hdu(self, index, name, label, region, units_text, exptime, frames):
+        self.hdus[index] = dict(name=name, label=label, region=region, units=units_text,
+                                exptime=float(exptime or 0.0), frames=frames)
+        self.infos[index] = [None] * frames
+
+    @property
+    def done(self):
+        return all(all(i is not None for i in v) for v in self.infos.values())
+
+    def status(self):
+        if self.operation != "decouple":
+            return None
+        return status(self.infos, self.all_science, self.tol) if self.done else PENDING
+
+    def _iterations(self, infos):
+        return max(i.iterations for i in infos) if infos and all(infos) else 0
+
+    def _converged(self, infos):
+        return bool(infos and all(infos) and all(i.converged for i in infos))
+
+    def primary(self, header):
+        """Write the run's keywords and HISTORY into ``header`` (returned)."""
+        for key in ("CHECKSUM", "DATASUM"):
+            header.remove(key, ignore_missing=True, remove_all=True)
+        first = min(self.hdus)
+        every = [i for v in self.infos.values() for i in v]
+        cards = {}
+        if self.operation == "decouple":
+            cards["S_IPC"] = (self.status(), "IPC correction (ipc_taichi)")
+        cards.update({
+            "IPCVER": (__version__, "ipc_taichi version"),
+            "IPCOP": (self.operation, "IPC operation applied"),
+            "IPCNHDU": (len(self.hdus), "science HDUs changed"),
+            "IPCHDU": (f"{first} {self.hdus[first]['name']}"[:60], "first HDU changed: index name"),
+            "IPCLAW": (self.model.law.name[:68], "IPC coupling law alpha(S,N), electrons"),
+            "IPCGEOM": (self.model.geometry.describe()[:68], "IPC geometry (dy,dx)=weight"),
+            "IPCEDGE": (self.model.edge, "IPC edge rule"),
+            "IPCEDGER": (self.edge_reason[:60], "why this edge rule"),
+            "IPCDQBIT": (self.bits, "DQ bits of pixels left out"),
+            "IPCPED": (self.pedestal_text[:60], "charge on the node before the first read"),
+            "IPCCOADD": (self.coadds, "exposures summed per frame"),
+            "IPCARCH": (self.arch, "Taichi arch used"),
+            "IPCPREC": (self.precision, "floating precision"),
+        })
+        if self.operation == "decouple":
+            cards.update({
+                "IPCITER": (self._iterations(every), "Jacobi iterations (max over frames)"),
+                "IPCCONV": (self._converged(every), "stopping rule met (all frames)"),
+                "IPCTOL": (self.tol, "stop: max|dS| <= TOL*max|S|"),
+                "IPCMAXIT": (self.max_iter, "iteration limit"),
+            })
+        for key, value in cards.items():
+            header[key] = value
+        for line in self._history():
+            header.add_history(line)
+        return header
+
+    def science(self, index, header):
+        """Write HDU ``index``'s own keywords into ``header`` (returned)."""
+        for key in ("CHECKSUM", "DATASUM"):
+            header.remove(key, ignore_missing=True, remove_all=True)
+        h = self.hdus[index]
+        header["IPCOP"] = (self.operation, "IPC operation applied to this HDU")
+        header["IPCHDU"] = (f"{index} {h['name']}"[:60], "this HDU: index name")
+        header["IPCREFPX"] = (section(h["region"]), "science region (FITS section, 1-based)")
+        header["IPCTIME"] = (h["exptime"], "integration time used, s (0: not a rate)")
+        if self.operation == "decouple":
+            infos = self.infos[index]
+            header["IPCITER"] = (self._iterations(infos), "Jacobi iterations (max, this HDU)")
+            header["IPCCONV"] = (self._converged(infos), "stopping rule met (this HDU)")
+        return header
+
+    def _history(self):
+        how = f" (tiles {self.tile})" if self.tile else ""
+        lines = [f"{self.started} ipc_taichi {__version__} {self.operation}{how}",
+                 f"model: {self.model.describe()}; edge: {self.edge_reason}",
+                 f"pedestal: {self.pedestal_text}; coadds: {self.coadds}"]
+        for index, h in self.hdus.items():
+            lines.append(f"HDU {index} {h['name']}: units {h['units']}")
+            if self.operation == "decouple":
+                for k, i in enumerate(self.infos[index]):
+                    it, conv = (i.iterations, i.converged) if i else (0, False)
+                    last = i.max_delta[-1] if i and i.max_delta else 0.0
+                    lines.append(f"  frame {k:5d}: {it:3d} iterations, "
+                                 f"{'converged    ' if conv else 'NOT converged'}, "
+                                 f"last max|dS| {last:10.3e}")
+        return lines
+
+    def record(self):
+        """The same record as a dict (Roman ``meta.ipc_taichi``)."""
+        (index, h), = self.hdus.items()
+        out = {"version": __version__, "operation": self.operation,
+               "law": self.model.law.name, "model": self.model.describe(),
+               "edge_reason": self.edge_reason, "units": h["units"], "dq_bits": self.bits,
+               "pedestal": self.pedestal_text, "coadds": self.coadds,
+               "science_region": [[h["region"][0].start, h["region"][0].stop],
+                                  [h["region"][1].start, h["region"][1].stop]],
+               "arch": self.arch or "", "precision": self.precision or ""}
+        if self.operation == "decouple":
+            infos = self.infos[index]
+            out.update(S_IPC=self.status(), iterations=[int(i.iterations) for i in infos],
+                       converged=self._converged(infos), tol=float(self.tol),
+                       max_iter=int(self.max_iter))
+        return out

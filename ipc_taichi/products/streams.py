@@ -1,0 +1,138 @@
+"""The two ways a FITS science array goes through the correction: whole, or
+tile by tile through memory maps (frames larger than memory).
+
+Both apply the same rules (:mod:`ipc_taichi.products.conventions`); the
+tiled result equals the whole-frame one (see :mod:`ipc_taichi.tiling`).
+"""
+
+import numpy as np
+
+from ..errors import IPCInputError
+from ..interrupts import check_stop
+from . import conventions as cv
+from .fitsfile import RawImage, read_array
+
+__all__ = ["Flags", "whole", "tiled"]
+
+
+class Flags:
+    """The bit-flag arrays of one science HDU, whole or as windows, and the
+    pixels they (and the other rules) leave out."""
+
+    def __init__(self, path, hdul, indices, bits, shape, inside, saturation, tile):
+        self.shape = shape
+        self.bits = bits
+        self.inside = inside
+        self.saturation = saturation
+        indices = indices if bits else []
+        ndim = len(shape)
+        if tile:
+            self.sources = [(RawImage(path, hdul, k), ndim - hdul[k].header["NAXIS"])
+                            for k in indices]
+        else:
+            self.sources = [(read_array(path, hdul, k), ndim - hdul[k].header["NAXIS"])
+                            for k in indices]
+
+    def whole(self, region, data):
+        """The mask of the whole array (None when nothing is left out)."""
+        inside = None
+        if self.inside is not None:
+            inside = np.zeros(self.shape[-2:], dtype=bool)
+            inside[region] = self.inside
+        return cv.untrusted([src for src, _ in self.sources], self.bits, self.shape, inside,
+                            values=data, saturation=self.saturation)
+
+    def window(self, lead, region, window, values):
+        """The mask of frame ``lead`` (leading indices), window ``window`` of
+        the science region (None when nothing is left out)."""
+        full = tuple(slice(r.start + w.start, r.start + w.stop) for r, w in zip(region, window))
+        shape = tuple(s.stop - s.start for s in full)
+        flags = [np.asarray(src[tuple(lead[n:]) + full]) for src, n in self.sources]
+        inside = None if self.inside is None else self.inside[window]
+        return cv.untrusted(flags, self.bits, shape, inside, values=values,
+                            saturation=self.saturation)
+
+
+def whole(path, hdul, index, out, flags, region, scale, model, options, label, pedestal=None,
+          operation="decouple"):
+    """Correct HDU ``index`` in memory into ``out`` (a memory map of the output)."""
+    data = read_array(path, hdul, index)
+    _, infos = cv.correct_frames(
+        data, operation, model, mask=flags.whole(region, data), region=region, scale=scale,
+        out=out, max_iter=options.max_iter, tol=options.tol, arch=options.arch,
+        precision=options.precision, label=label, pedestal=pedestal)
+    return infos
+
+
+def tiled(path, hdul, index, out, flags, region, scale, model, options, label):
+    """Decouple every frame of HDU ``index`` tile by tile (read and write
+    through memory maps)."""
+    from ..tiling import decouple_blocks
+
+    source = RawImage(path, hdul, index)
+    shape = source.shape
+    ny, nx = region[0].stop - region[0].start, region[1].stop - region[1].start
+    s = np.asarray(scale, dtype=np.float64)
+    infos = []
+    leads = list(np.ndindex(*shape[:-2])) if len(shape) > 2 else [()]
+    # pixels outside the region (reference pixels) are copied unchanged
+    for lead in leads:
+        for ys, xs in _strips(shape[-2:]):
+            out[lead + (ys, xs)] = source[lead + (ys, xs)]
+    for k, lead in enumerate(leads):
+        where = f"{label} frame {k}" if len(leads) > 1 else label
+
+        def full(window):
+            return tuple(slice(r.start + w.start, r.start + w.stop)
+                         for r, w in zip(region, window))
+
+        def factor(window):
+            return s[full(window)] if s.ndim == 2 else s
+
+        # NaN pixels travel as masked pixels holding zero (the same rule: neither
+        # gives nor takes charge), so that no tile is ever all NaN
+        def read(window, lead=lead):
+            values = source[lead + full(window)] * factor(window)
+            return np.where(np.isfinite(values), values, 0.0)
+
+        def read_mask(window, lead=lead):
+            values = source[lead + full(window)]
+            m = ~np.isfinite(values)
+            flagged = flags.window(lead, region, window, values)
+            if flagged is not None:
+                m |= flagged
+            if s.ndim == 2:
+                m |= cv.unusable_gain(factor(window))
+            return m
+
+        def write(core, values, lead=lead):
+            check_stop()  # a SIGINT/SIGTERM swallowed by a library stops the run here
+            with np.errstate(divide="ignore", invalid="ignore"):  # no gain: masked below
+                result = values / factor(core)
+            out[lead + full(core)] = np.where(read_mask(core), source[lead + full(core)],
+                                              result)
+
+        _check_not_empty(read, read_mask, (ny, nx), options.tile, where)  # one read pass
+        with cv.named(where):
+            info = decouple_blocks(read, write, (ny, nx), options.tile, model,
+                                   max_iter=options.max_iter, tol=options.tol,
+                                   arch=options.arch, precision=options.precision,
+                                   progress=options.progress, read_mask=read_mask)
+        infos.append(info)
+    return infos
+
+
+def _strips(shape, rows=256):
+    for y0 in range(0, shape[0], rows):
+        yield slice(y0, min(shape[0], y0 + rows)), slice(0, shape[1])
+
+
+def _check_not_empty(read, read_mask, shape, tile, where):
+    from ..tiling import tiles
+
+    for core in tiles(shape, tile):
+        v = read(core)
+        m = read_mask(core)
+        if (np.isfinite(v) & (True if m is None else ~m)).any():
+            return
+    raise IPCInputError(f"{where}: no finite, unmasked pixel to decouple (all NaN or flagged)")
