@@ -52,8 +52,11 @@ def test_usage_errors(cli, tmp_path):
     a, b, c = (tmp_path / f"{n}.fits" for n in "abc")
     r = cli("decouple", a, b, c)
     assert r.returncode == 2 and "-o OUTDIR" in r.stderr
-    r = cli("decouple", a, b, "-o", tmp_path / "missing")
-    assert r.returncode == 2 and "does not exist" in r.stderr
+    r = cli("decouple", a, "-o", tmp_path / "missing")  # -o makes its directory
+    assert r.returncode == 1 and "no such file" in r.stderr and (tmp_path / "missing").is_dir()
+    (tmp_path / "afile").write_bytes(b"x")
+    r = cli("decouple", a, b, "-o", tmp_path / "afile")
+    assert r.returncode == 2 and "not a directory" in r.stderr
     (tmp_path / "d1").mkdir()
     (tmp_path / "d2").mkdir()
     r = cli("decouple", tmp_path / "d1" / "x.fits", tmp_path / "d2" / "x.fits", "-o", tmp_path)
@@ -90,3 +93,27 @@ def test_one_worker_per_gpu(tmp_path, rng):
     for k in range(2):
         ref, _, _, _ = decouple_reference(fits.getdata(inputs[k]))
         np.testing.assert_allclose(fits.getdata(out / f"f{k}_decoupled.fits"), ref, rtol=1e-9)
+
+
+def test_model_file_many_files_and_tiles(cli, tmp_path, rng):
+    """``--model FILE`` reaches every path: many files on Dask, and --tile."""
+    from ipc_taichi.model import CouplingModel
+
+    model = tmp_path / "det.json"
+    CouplingModel.resolve("constant:0.006", edge="zero").save(model)
+    truths = [rng.uniform(0, 30000, (24, 20)) for _ in range(2)]
+    inputs = []
+    for k, t in enumerate(truths):
+        inputs.append(tmp_path / f"in{k}.fits")
+        fits.writeto(inputs[-1], couple_reference(t, law="constant:0.006"))
+    out = tmp_path / "out"
+    r = cli("decouple", *inputs, "-o", out, "--model", model, "--workers", "2", "--quiet")
+    assert r.returncode == 0, r.stderr
+    for k, t in enumerate(truths):
+        got = fits.getdata(out / f"in{k}_decoupled.fits")
+        assert np.abs(got - t).max() <= 2e-5 * t.max()
+        assert fits.getheader(out / f"in{k}_decoupled.fits")["IPCLAW"] == "constant:0.006"
+    tiled = tmp_path / "tiled.fits"
+    r = cli("decouple", inputs[0], tiled, "--model", model, "--tile", 8)
+    assert r.returncode == 0, r.stderr
+    assert np.abs(fits.getdata(tiled) - truths[0]).max() <= 2e-5 * truths[0].max()

@@ -45,21 +45,10 @@ from . import missions, streams
 from .fitsfile import (flag_hdus, hdu_label, is_compressed, keyword, open_fits, read_array,
                        science_header, science_indices, shape_of, write_skeleton)
 from .gain import read_frame, read_gain
-from .options import ProductOptions
+from .options import ProductOptions, resolve_model
 from .provenance import Provenance
 
-__all__ = ["process_fits", "resolve_model"]
-
-
-def resolve_model(model, options):
-    """The model and the options saying whether the caller chose it: with no
-    model, the paper's law, and neither the law nor the edge counts as chosen."""
-    from ..model import CouplingModel
-
-    if model is None:
-        return CouplingModel.resolve("donlon2018"), options.replace(model_chosen=False,
-                                                                    edge_chosen=False)
-    return CouplingModel.from_arguments(model=model), options
+__all__ = ["process_fits"]
 
 
 def _check_paths(input_path, output_path, operation, options):

@@ -7,6 +7,7 @@ gain cannot convert is :func:`ipc_taichi.products.conventions.unusable_gain`.
 import numpy as np
 
 from ..errors import IPCInputError
+from .fitsfile import open_fits
 from .missions import is_asdf
 
 __all__ = ["read_gain", "read_frame"]
@@ -45,8 +46,6 @@ def read_frame(gain, shape2d, what):
         if image.shape == _ROMAN_FULL_FRAME and tuple(shape2d) == (4088, 4088):
             image = image[4:-4, 4:-4]
     else:
-        from .fitsfile import open_fits
-
         with open_fits(text, memmap=False) as hdul:
             image = next((np.array(h.data, dtype=np.float64) for h in hdul
                           if h.is_image and h.data is not None), None)

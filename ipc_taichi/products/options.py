@@ -14,7 +14,7 @@ from .. import iteration
 from ..errors import IPCInputError
 from .missions import DEFAULT_DQ
 
-__all__ = ["ProductOptions"]
+__all__ = ["ProductOptions", "resolve_model"]
 
 
 @dataclass(frozen=True)
@@ -106,3 +106,15 @@ class ProductOptions:
     def replace(self, **changes):
         """A copy with ``changes``."""
         return dataclasses.replace(self, **changes)
+
+
+def resolve_model(model, options):
+    """The coupling model of a run and the options saying whether the caller
+    chose it: with no model, the paper's law, and neither the law nor the
+    edge counts as chosen (an instrument product then refuses it)."""
+    from ..model import CouplingModel
+
+    if model is None:
+        return CouplingModel.resolve("donlon2018"), options.replace(model_chosen=False,
+                                                                    edge_chosen=False)
+    return CouplingModel.from_arguments(model=model), options

@@ -27,13 +27,14 @@ import warnings
 
 import numpy as np
 
+from .. import iteration
 from ..errors import IPCInputError
 from ..fitsio import check_output_path
 from ..interrupts import check_stop
 from . import conventions as cv
 from . import missions
 from .gain import read_gain
-from .options import ProductOptions
+from .options import ProductOptions, resolve_model
 from .provenance import Provenance
 
 __all__ = ["process_asdf"]
@@ -67,9 +68,6 @@ def process_asdf(input_path, output_path, operation="decouple", *, model=None, o
     (``hdu`` and ``tile`` do not apply and are refused; ``progress`` is
     ignored). Returns the same summary dict.
     """
-    from .. import iteration
-    from .fits import resolve_model
-
     options = ProductOptions.from_kwargs(options, **kwargs)
     try:
         import roman_datamodels.datamodels as rdm

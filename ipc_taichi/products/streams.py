@@ -9,6 +9,7 @@ import numpy as np
 
 from ..errors import IPCInputError
 from ..interrupts import check_stop
+from ..tiling import decouple_blocks, tiles
 from . import conventions as cv
 from .fitsfile import RawImage, read_array
 
@@ -67,8 +68,6 @@ def whole(path, hdul, index, out, flags, region, scale, model, options, label, p
 def tiled(path, hdul, index, out, flags, region, scale, model, options, label):
     """Decouple every frame of HDU ``index`` tile by tile (read and write
     through memory maps)."""
-    from ..tiling import decouple_blocks
-
     source = RawImage(path, hdul, index)
     shape = source.shape
     ny, nx = region[0].stop - region[0].start, region[1].stop - region[1].start
@@ -128,8 +127,6 @@ def _strips(shape, rows=256):
 
 
 def _check_not_empty(read, read_mask, shape, tile, where):
-    from ..tiling import tiles
-
     for core in tiles(shape, tile):
         v = read(core)
         m = read_mask(core)
