@@ -104,3 +104,26 @@ def test_dying_worker_fails_only_its_file(client, tmp_path, rng):
     assert not os.path.exists(pairs[1][1])
     assert os.path.exists(pairs[0][1]) and os.path.exists(pairs[2][1])
     client.wait_for_workers(2, timeout=60)  # the nanny restarts the dead worker
+
+
+def test_mosaic_refuses_law_with_model(rng):
+    """As ipc_taichi.decouple: a model and a law together are refused, not
+    one silently ignored (checked before any work, so no client is needed)."""
+    from ipc_taichi import IPCInputError
+    from ipc_taichi.model import CouplingModel
+
+    frame = rng.uniform(0, 1000, (16, 16))
+    model = CouplingModel.resolve("constant:0.01")
+    with pytest.raises(IPCInputError, match="not both"):
+        decouple_mosaic(frame, None, chunk=8, law="constant:0.02", model=model)
+
+
+def test_product_options_refuse_unknown_names():
+    from ipc_taichi import IPCInputError
+    from ipc_taichi.products import ProductOptions
+
+    with pytest.raises(IPCInputError, match="unknown product option"):
+        ProductOptions.from_kwargs(gian=2.0)
+    options = ProductOptions.from_kwargs(gain=2.0, dq_bits=None, output_dtype="same")
+    assert options.gain == 2.0 and options.dq_bits == "DO_NOT_USE,SATURATED"
+    assert options.output_dtype is None

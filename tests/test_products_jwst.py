@@ -113,3 +113,47 @@ def test_entry_point_names_the_classes():
         step = getattr(importlib.import_module(module), cls)
         assert step.class_alias == alias
         assert issubclass(step, Pipeline) == is_pipeline
+
+
+def test_step_needs_a_chosen_law_and_takes_a_model_file(tmp_path, rng):
+    """No silent paper's law on a JWST ramp; ``model=`` a coupling-model file;
+    ``.call()`` works offline (no CRDS parameter lookup)."""
+    from ipc_taichi.model import CouplingModel
+
+    model, truth = _ramp(rng)
+    with pytest.raises(ValueError, match="calibrate"):
+        IPCTaichiStep(gain=GAIN).run(model)
+    path = tmp_path / "det.json"
+    CouplingModel.resolve("donlon2018").save(path)
+    src = tmp_path / "jw01_ramp.fits"
+    model.save(src)
+    result = IPCTaichiStep.call(str(src), gain=GAIN, model=str(path))
+    assert result.meta.cal_step.ipc == "COMPLETE"
+    inner = (slice(BORDER, -BORDER), slice(BORDER, -BORDER))
+    got = np.asarray(result.data, dtype=float)
+    assert np.abs(got[0, 2] - truth[0, 2])[inner].max() <= 2e-5 * truth[0, 2].max()
+
+
+def test_step_records_non_convergence(rng):
+    model, _ = _ramp(rng)
+    result = IPCTaichiStep(gain=GAIN, law="donlon2018", max_iter=1).run(model)
+    assert result.meta.cal_step.ipc == "FAILED"
+
+
+def test_step_keeps_the_reference_border_without_flags(rng):
+    """A subarray at the detector's corner (SUBSTRT1 = SUBSTRT2 = 1) whose
+    PIXELDQ lacks REFERENCE_PIXEL flags: its 4 reference rows and columns are
+    found from the subarray keywords and never changed."""
+    model, _ = _ramp(rng)
+    model.pixeldq = np.zeros(model.pixeldq.shape, dtype=np.uint32)
+    model.meta.instrument.name = "NIRCAM"
+    model.meta.subarray.name = "SUB32"
+    model.meta.subarray.xstart, model.meta.subarray.ystart = 1, 1
+    model.data[:, :, :BORDER] = 500.0  # reference pixels hold anything
+    model.data[:, :, :, :BORDER] = 500.0
+    before = np.array(model.data)
+    result = IPCTaichiStep(gain=GAIN, law="donlon2018").run(model)
+    got = np.asarray(result.data)
+    assert (got[:, :, :BORDER] == before[:, :, :BORDER]).all()
+    assert (got[:, :, :, :BORDER] == before[:, :, :, :BORDER]).all()
+    assert (got[:, :, BORDER:, BORDER:] != before[:, :, BORDER:, BORDER:]).any()

@@ -243,8 +243,9 @@ def _normal(text):
     return t.replace(" ", "")
 
 
-def parse_units(bunit, label):
-    """:class:`Units` of a ``BUNIT`` value (``None``: electrons, the law's unit).
+def parse_units(bunit, label, source="BUNIT"):
+    """:class:`Units` of a ``BUNIT`` value (``None``: electrons, the law's unit);
+    ``source`` names where the value came from in errors (Roman: its schema).
 
     Raises :class:`IPCInputError` (one line, naming ``label``) for flux-calibrated
     or unknown units."""
@@ -261,9 +262,9 @@ def parse_units(bunit, label):
         return Units("dn_rate", str(bunit))
     if any(h in t for h in FLUX_HINTS):
         raise IPCInputError(
-            f"{label}: BUNIT {bunit!r} is flux-calibrated; IPC acts on collected charge: "
+            f"{label}: {source} {bunit!r} is flux-calibrated; IPC acts on collected charge: "
             "decouple the rate (DN/s) or ramp (DN) product instead")
-    raise IPCInputError(f"{label}: BUNIT {bunit!r} not understood; give --bunit electron, DN "
+    raise IPCInputError(f"{label}: {source} {bunit!r} not understood; give --bunit electron, DN "
                         "or DN/s (with --gain E_PER_DN, and --exptime SECONDS for rates)")
 
 

@@ -114,7 +114,9 @@ def process_asdf(input_path, output_path, operation="decouple", *, model=None, o
         if data.dtype.kind != "f":
             raise IPCInputError(f"{label}: integer data ({data.dtype}); subtract the bias first")
         units = cv.parse_units(options.bunit if options.bunit is not None
-                               else _units(dm, ramp), label)
+                               else _units(dm, ramp), label,
+                               "--bunit" if options.bunit is not None else
+                               "units (meta.cal_step.flux)")
         if options.gain is not None and not units.needs_gain:
             raise IPCInputError(f"{label}: a gain was given but the data are in {units.text}; "
                                 "give --bunit DN or DN/s if they are not")
