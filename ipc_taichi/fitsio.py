@@ -131,7 +131,13 @@ class atomic_output:
             if os.path.exists(self.path) and not self.overwrite:  # appeared meanwhile
                 os.unlink(self.tmp)
                 raise IPCInputError(f"{self.path}: exists (use --overwrite to replace it)")
-            os.replace(self.tmp, self.path)
+            try:
+                os.replace(self.tmp, self.path)
+            except OSError as exc:  # name the user's file, not the temporary one
+                if os.path.exists(self.tmp):
+                    os.unlink(self.tmp)
+                raise IPCInputError(f"{self.path}: cannot be written "
+                                    f"({exc.strerror or type(exc).__name__})") from None
         elif os.path.exists(self.tmp):
             os.unlink(self.tmp)
         return False

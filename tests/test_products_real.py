@@ -410,3 +410,20 @@ def test_model_file_for_an_instrument_product(cli, tmp_path, rng):
     # a cut-out (no reference border): the model file's edge is the caller's choice
     assert fits.getheader(out)["IPCEDGE"] == "zero"
     assert np.abs(fits.getdata(out, "SCI") - truth).max() <= 2e-5 * truth.max()
+
+
+def test_ima_tiled_equals_whole_without_pedestal(cli, tmp_path, ima):
+    """Every read through --tile (the pedestal cannot be added tile by tile:
+    refused in one line; with --pedestal none, tiled equals whole)."""
+    src, *_ = ima
+    r = cli("decouple", src, tmp_path / "t.fits", *LAW, "--tile", 16)
+    assert r.returncode == 2 and "--pedestal none" in r.stderr
+    whole, tiled = tmp_path / "whole.fits", tmp_path / "tiled.fits"
+    assert cli("decouple", src, whole, *LAW, "--pedestal", "none").returncode == 0
+    r = cli("decouple", src, tiled, *LAW, "--pedestal", "none", "--tile", 16)
+    assert r.returncode == 0, r.stderr
+    with fits.open(whole) as a, fits.open(tiled) as b:
+        for ver in range(1, 6):
+            np.testing.assert_allclose(b[("SCI", ver)].data, a[("SCI", ver)].data, rtol=1e-6,
+                                       atol=1e-6)
+        assert b[0].header["S_IPC"] == "COMPLETE"
