@@ -268,7 +268,8 @@ def parse_units(bunit, label, source="BUNIT"):
                         "or DN/s (with --gain E_PER_DN, and --exptime SECONDS for rates)")
 
 
-def charge_scale(units, gain, exptime, label, time_source="EFFINTTM", coadds=1):
+def charge_scale(units, gain, exptime, label, time_source="EFFINTTM", coadds=1,
+                 gain_source="a GAIN keyword"):
     """Electrons per unit of the data, per exposure: 1, gain, gain*exptime or
     exptime, divided by the number of coadded exposures.
 
@@ -281,8 +282,9 @@ def charge_scale(units, gain, exptime, label, time_source="EFFINTTM", coadds=1):
         Integration time in seconds (rates only).
     label : str
         The file and HDU, for error messages.
-    time_source : str
-        Where the integration time is looked for (for the error message).
+    time_source, gain_source : str
+        Where the integration time and the gain are looked for (for the error
+        messages: FITS keywords, or a Roman model's fields).
     coadds : int
         Exposures summed in each frame: the law sees the charge of one.
 
@@ -296,7 +298,7 @@ def charge_scale(units, gain, exptime, label, time_source="EFFINTTM", coadds=1):
     if units.needs_gain:
         if gain is None:
             raise IPCInputError(f"{label}: data in {units.text} need a gain: give --gain E_PER_DN "
-                                "(a number or a gain image .fits), or a GAIN keyword")
+                                f"(a number or a gain image file), or {gain_source}")
         g = np.asarray(gain, dtype=np.float64)
         if g.ndim == 0:
             if not (np.isfinite(g) and g > 0):

@@ -32,7 +32,7 @@ import numpy as np
 
 from ..errors import IPCInputError
 
-__all__ = ["Mission", "recognise", "ROMAN", "HST_DQ_FLAGS", "JWST_DQ_FLAGS", "REFERENCE_PIXEL",
+__all__ = ["Mission", "recognise", "roman_mission", "reference_mask", "HST_DQ_FLAGS", "JWST_DQ_FLAGS", "REFERENCE_PIXEL",
            "check_model_chosen", "check_not_bias", "is_asdf", "TIME_KEYWORDS", "COADD_KEYWORDS",
            "DEFAULT_DQ"]
 
@@ -148,9 +148,6 @@ def recognise(primary, science=None, hdul=None):
         name, flags = telescope, dict(JWST_DQ_FLAGS)
     flags.update(_dq_def(hdul) if hdul is not None else {})
     return Mission(name, instrument, name in ("JWST", "HST", "Roman"), flags)
-
-
-ROMAN = Mission("Roman", "WFI", True)
 
 
 def roman_mission():

@@ -127,6 +127,7 @@ def process_asdf(input_path, output_path, operation="decouple", *, model=None, o
         scale, units_text = cv.charge_scale(
             units, read_gain(options.gain, data.shape[-2:]), exptime, label,
             time_source="meta.exposure.effective_exposure_time",
+            gain_source="a gain reference file (--gain FILE.asdf)",
             coadds=options.coadds or 1)
         bits = cv.parse_dq_bits(options.dq_bits, mission.dq_flags) & ~cv.REFERENCE_PIXEL
         for name, f in zip(names, flags):
