@@ -427,3 +427,19 @@ def test_ima_tiled_equals_whole_without_pedestal(cli, tmp_path, ima):
             np.testing.assert_allclose(b[("SCI", ver)].data, a[("SCI", ver)].data, rtol=1e-6,
                                        atol=1e-6)
         assert b[0].header["S_IPC"] == "COMPLETE"
+
+
+def test_cutout_rate_uses_exptime(cli, tmp_path, rng):
+    """A NIRISS-like rate cut-out (DN/s) that carries EXPTIME but no EFFINTTM:
+    no --exptime needed; the time used is recorded in its HDU."""
+    truth = rng.uniform(0, 20000, (18, 20))
+    sci = fits.ImageHDU((couple_reference(truth) / (2.0 * 50.0)).astype(np.float32), name="SCI")
+    sci.header["BUNIT"] = "DN/s"
+    primary = fits.Header({"TELESCOP": "JWST", "INSTRUME": "NIRISS", "EXPTIME": 50.0})
+    src, out = tmp_path / "cutout.fits", tmp_path / "out.fits"
+    fits.HDUList([fits.PrimaryHDU(header=primary), sci]).writeto(src)
+    r = cli("decouple", src, out, *LAW, "--edge", "zero", "--gain", 2.0)
+    assert r.returncode == 0, r.stderr
+    assert fits.getheader(out, "SCI")["IPCTIME"] == 50.0
+    got = fits.getdata(out, "SCI").astype(float) * 100.0
+    assert np.abs(got - truth).max() <= 2e-5 * truth.max() + 1e-3 * 100
