@@ -107,8 +107,8 @@ def find_hot_pixels(frame, mask=None, threshold=30.0, isolation=3, max_neighbour
     clean = np.where(bad, np.nanmedian(frame[~bad]) if (~bad).any() else 0.0, frame)
     level = float(np.median(clean))
     sigma = _robust_sigma(clean[::max(1, ny // 512), ::max(1, nx // 512)] - level)
-    if not np.isfinite(sigma) or sigma <= 0:
-        sigma = float(np.std(clean)) or 1.0
+    if not np.isfinite(sigma) or sigma <= 0:  # noise-free: any excess is a detection
+        sigma = 1e-9 * max(abs(level), 1.0)
     peak = clean == ndimage.maximum_filter(clean, size=3, mode="nearest")
     cand = peak & (clean > level + threshold * sigma) & ~bad
     cand[:3, :] = cand[-3:, :] = False
@@ -202,7 +202,7 @@ def _clipped(values, nsigma=3.0, rounds=5):
     return float(np.mean(v)), err, int(v.size)
 
 
-def summarise_events(events, bins=None, min_signal=200.0, per_decade=6, min_count=10):
+def summarise_events(events, bins=None, min_signal=200.0, per_decade=6, min_count=3):
     """alpha(S, 0) per direction in logarithmic signal bins.
 
     Parameters

@@ -232,9 +232,9 @@ def fit_law(hot_rows, flat_rows, max_degree=3):
         model, model error, pull), ``assumed``, ``notes``.
     """
     points = _points(hot_rows, flat_rows)
-    if len(points) < 2:
-        raise ValueError("nothing to fit: fewer than 2 measured points (no isolated hot "
-                         "pixel and no usable flat level)")
+    if not points:
+        raise ValueError("nothing to fit: no measured point (no isolated hot pixel and no "
+                         "usable flat level)")
     weights, werr, notes = geometry_weights(points)
     S, N, A, E, src = _nn_alpha(points, weights)
     n = len(S)
