@@ -74,7 +74,7 @@ def kernel_autocorrelation(k, lag):
     return float(np.sum(a * b))
 
 
-def flat_covariances(frames, mask=None, border=2):
+def flat_covariances(frames, mask=None, border=2, cancel_pattern=True):
     """Noise covariances of flats at one level, at :data:`LAGS`.
 
     Parameters
@@ -86,6 +86,10 @@ def flat_covariances(frames, mask=None, border=2):
         any frame is left out.
     border : int
         Pixels dropped at each edge (the edge of the coupling).
+    cancel_pattern : bool
+        Subtract the per-pixel mean of the frames (cancels the fixed pattern;
+        needs >= 2 frames). False subtracts each frame's own mean only: for
+        flats known to have no fixed pattern (simulations), one frame will do.
 
     Returns
     -------
@@ -94,7 +98,9 @@ def flat_covariances(frames, mask=None, border=2):
         ``"dy,dx"``: ``{"cov", "error"}`` (error of the mean of the products).
     """
     stack = np.array(frames, dtype=np.float64)
-    if stack.ndim != 3 or stack.shape[0] < 2:
+    if stack.ndim == 2 and not cancel_pattern:
+        stack = stack[None]
+    if stack.ndim != 3 or (cancel_pattern and stack.shape[0] < 2):
         raise IPCInputError(f"flats at one level need >= 2 frames (n, ny, nx) to cancel the "
                             f"fixed pattern, got shape {stack.shape}")
     bad = ~np.isfinite(stack)
@@ -112,7 +118,10 @@ def flat_covariances(frames, mask=None, border=2):
                             "border)")
     stack = np.where(good[None], stack, 0.0)
     level = float(stack[:, good].mean())
-    resid = (stack - stack.sum(axis=0) / n) * np.sqrt(n / (n - 1.0))
+    if cancel_pattern:
+        resid = (stack - stack.sum(axis=0) / n) * np.sqrt(n / (n - 1.0))
+    else:
+        resid = stack.copy()
     for r in resid:
         r -= r[good].mean()
         r[~good] = 0.0

@@ -135,7 +135,7 @@ def find_hot_pixels(frame, mask=None, threshold=30.0, isolation=3, max_neighbour
     return np.stack([y[keep], x[keep]], axis=1)
 
 
-def measure_events(groups, positions, mask=None):
+def measure_events(groups, positions, mask=None, background=None):
     """The fraction of each box offset for every hot pixel in every group.
 
     Parameters
@@ -144,6 +144,8 @@ def measure_events(groups, positions, mask=None):
         Charge [e-] of each group (one integration), or a stack of frames.
     positions : ndarray of int, (k, 2)
     mask : ndarray of bool, (ny, nx) or (ngroups, ny, nx), optional
+    background : float, optional
+        A known background [e-] (default: the median of each event's ring).
 
     Returns
     -------
@@ -157,13 +159,19 @@ def measure_events(groups, positions, mask=None):
         groups = groups[None]
     positions = np.asarray(positions, dtype=int).reshape(-1, 2)
     y, x = positions.T
+    ny, nx = groups.shape[-2:]
+    inside = (y >= 3) & (y < ny - 3) & (x >= 3) & (x < nx - 3)  # the ring must fit
+    y, x = np.where(inside, y, 3), np.where(inside, x, 3)
     out = {k: [] for k in ("signal", "background", "fraction", "event", "group")}
     for g, frame in enumerate(groups):
         if positions.shape[0] == 0:
             break
-        background = np.median(_gather(frame, y, x, _RING), axis=1)
-        box = _gather(frame, y, x, _BOX) - background[:, None]
-        ok = np.all(np.isfinite(box), axis=1) & np.isfinite(background)
+        if background is None:
+            level = np.median(_gather(frame, y, x, _RING), axis=1)
+        else:
+            level = np.full(len(y), float(background))
+        box = _gather(frame, y, x, _BOX) - level[:, None]
+        ok = np.all(np.isfinite(box), axis=1) & np.isfinite(level) & inside
         if mask is not None:
             m = np.asarray(mask, bool)
             m = m[g] if m.ndim == 3 else m
@@ -171,7 +179,7 @@ def measure_events(groups, positions, mask=None):
         total = box.sum(axis=1)
         ok &= total > 0
         out["signal"].append(total[ok])
-        out["background"].append(background[ok])
+        out["background"].append(level[ok])
         out["fraction"].append(box[ok] / total[ok, None])
         out["event"].append(np.flatnonzero(ok))
         out["group"].append(np.full(int(ok.sum()), g))
