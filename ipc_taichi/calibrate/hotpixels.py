@@ -210,7 +210,8 @@ def _clipped(values, nsigma=3.0, rounds=5):
     return float(np.mean(v)), err, int(v.size)
 
 
-def summarise_events(events, bins=None, min_signal=200.0, per_decade=6, min_count=3):
+def summarise_events(events, bins=None, min_signal=200.0, per_decade=6, min_count=10,
+                     max_fraction=0.1):
     """alpha(S, 0) per direction in logarithmic signal bins.
 
     Parameters
@@ -219,9 +220,14 @@ def summarise_events(events, bins=None, min_signal=200.0, per_decade=6, min_coun
         From :func:`measure_events` (or several concatenated).
     bins : array_like, optional
         Bin edges [e-]; default ``per_decade`` logarithmic bins from
-        ``min_signal`` to the largest signal.
+        ``min_signal`` to the largest signal, sparse ones merged with their
+        neighbours.
     min_count : int
-        Bins with fewer measurements are left out.
+        Bins with fewer measurements are merged (default bins) or left out.
+    max_fraction : float
+        A measurement where any pixel of the box other than the centre holds
+        more than this fraction of the total (either sign) is not coupling (a
+        bad neighbour, a cosmic ray) and is left out.
 
     Returns
     -------
@@ -232,13 +238,14 @@ def summarise_events(events, bins=None, min_signal=200.0, per_decade=6, min_coun
     """
     s = np.asarray(events["signal"], np.float64)
     frac = np.asarray(events["fraction"], np.float64).reshape(-1, 25)
-    use = s >= float(min_signal)
+    others = np.delete(frac, _BOX.index((0, 0)), axis=1) if frac.size else frac
+    use = (s >= float(min_signal)) & np.all(np.abs(others) <= float(max_fraction), axis=1)
     if bins is None:
         if not use.any():
             return []
         hi = float(s[use].max()) * 1.0001
         n_bins = max(1, int(np.ceil(per_decade * np.log10(hi / min_signal))))
-        bins = np.geomspace(min_signal, hi, n_bins + 1)
+        bins = _merge_sparse(np.geomspace(min_signal, hi, n_bins + 1), s[use], min_count)
     bins = np.asarray(bins, np.float64)
     rows = []
     for lo, hi in zip(bins[:-1], bins[1:]):
@@ -258,6 +265,23 @@ def summarise_events(events, bins=None, min_signal=200.0, per_decade=6, min_coun
             row[name] = {"value": value, "error": err, "n": kept, "halves": halves}
         rows.append(row)
     return rows
+
+
+def _merge_sparse(edges, values, min_count):
+    """Merge neighbouring bins until each holds >= ``min_count`` values (a few
+    hot pixels give a few wide bins rather than many with meaningless errors)."""
+    edges = list(edges)
+    k = 0
+    while k < len(edges) - 1 and len(edges) > 2:
+        n = np.sum((values >= edges[k]) & (values < edges[k + 1]))
+        if n >= min_count:
+            k += 1
+        elif k + 2 < len(edges):
+            del edges[k + 1]  # join with the next bin
+        else:
+            del edges[k]  # the last bin joins the one before
+            k = max(k - 1, 0)
+    return np.array(edges)
 
 
 def read_noise_from_darks(groups, mask=None):

@@ -87,7 +87,9 @@ def _read_fits(path, hdu, gain, dq_bits, refpix, bunit):
                                    shape2d)
         scale, units_text = cv.charge_scale(units, gain_value, None, label)
         data = np.asarray(pf._array(path, hdul, index, label), dtype=np.float64) * scale
-        bits = cv.parse_dq_bits(dq_bits) & ~cv.REFERENCE_PIXEL
+        bits = _file_dq_bits(hdul, dq_bits, label)
+        if bits is None:
+            bits = cv.parse_dq_bits(dq_bits) & ~cv.REFERENCE_PIXEL
         flag_hdus = pf._dq_arrays(hdul, index, shape, path)
         region, inside = pf._science_region(path, hdul, flag_hdus, shape2d, refpix, label)
         mask = np.zeros(shape, dtype=bool)
@@ -97,6 +99,28 @@ def _read_fits(path, hdu, gain, dq_bits, refpix, bunit):
         saturate = pf._keyword(hdul, index, "SATURATE")
     return _finish(path, label, data, mask, region, inside, units_text,
                    {"saturation": None if saturate is None else float(saturate) * np.max(scale)})
+
+
+def _file_dq_bits(hdul, dq_bits, label):
+    """The bits of ``dq_bits`` by the file's own ``DQ_DEF`` table (reference
+    files define their own: a NIRSpec dark has HOT = 4, which is JUMP_DET in
+    science products); None when the file has no such table. Names the table
+    does not define are left out."""
+    if "DQ_DEF" not in hdul:
+        return None
+    try:
+        table = hdul["DQ_DEF"].data
+        names = {str(n).strip().upper(): int(v) for n, v in zip(table["NAME"], table["VALUE"])}
+    except (KeyError, TypeError, ValueError):
+        raise IPCInputError(f"{label}: the DQ_DEF table has no NAME/VALUE columns") from None
+    bits = 0
+    for item in str(dq_bits).replace("+", ",").split(","):
+        item = item.strip()
+        if item.isdigit():
+            bits |= int(item)
+        elif item.upper() in names:
+            bits |= names[item.upper()]
+    return bits & ~(2 ** 31)
 
 
 def _read_asdf(path, gain, dq_bits, refpix, bunit):
