@@ -230,3 +230,21 @@ def test_mismatched_shapes_are_refused(cpu, tmp_path, small_dark, rng):
     flat = _write(tmp_path / "f.fits", rng.normal(1000, 30, (2, 64, 64)))
     with pytest.raises(IPCInputError, match="different frame shapes"):
         calibrate([small_dark], [flat], gain=2.0)
+
+
+def test_calibrate_cli_report_and_figures(cpu, cli, tmp_path, small_dark):
+    out, rep, figs = tmp_path / "m.json", tmp_path / "r.json", tmp_path / "figs"
+    r = cli("calibrate", "--darks", small_dark, "--gain", "2", "-o", str(out), "--report",
+            str(rep), "--figures", str(figs), "--quiet")
+    assert r.returncode == 0, r.stderr
+    assert r.stderr == ""
+    report = json.loads(rep.read_text())
+    assert report["fit"]["chosen"] in report["fit"]["forms"]
+    assert all(abs(p["pull"]) < 10 for p in report["fit"]["points"])
+    assert sorted(p.name for p in figs.iterdir()) == sorted(
+        f"calibrate_{d}.png" for d in hotpixels.DIRECTIONS)
+    # the model file decouples through the command line's --model
+    frame = tmp_path / "frame.fits"
+    _write(frame, np.full((32, 32), 1000.0))
+    r = cli("decouple", str(frame), str(tmp_path / "out.fits"), "--model", str(out))
+    assert r.returncode == 0, r.stderr
