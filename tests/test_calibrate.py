@@ -248,3 +248,60 @@ def test_calibrate_cli_report_and_figures(cpu, cli, tmp_path, small_dark):
     _write(frame, np.full((32, 32), 1000.0))
     r = cli("decouple", str(frame), str(tmp_path / "out.fits"), "--model", str(out))
     assert r.returncode == 0, r.stderr
+
+
+def test_saturated_flat_file_is_reported_and_the_rest_used(cpu, tmp_path, small_dark):
+    rng = np.random.default_rng(8)
+    good = np.array([ipcgen.couple(rng.poisson(5000.0, (96, 96)).astype(float), "constant")
+                     for _ in range(4)])
+    flat = _write(tmp_path / "f5k.fits", good / 2.0, bunit="DN")
+    sat = np.full((4, 96, 96), 32000.0)  # clipped at full well: no shot noise left
+    dq = np.full((96, 96), 2, np.uint32)  # SATURATED on half of them
+    dq[:, :40] = 0
+    saturated = _write(tmp_path / "fsat.fits", sat, bunit="DN", DQ=dq)
+    res = calibrate([small_dark], [flat, saturated], gain=2.0, read_noise=0.0)
+    nm = res["report"]["not_measured"]
+    assert any("fsat.fits[SCI]" in s and "saturated" in s for s in nm)
+    levels = res["report"]["flats"]["levels"]
+    assert [bool(r.get("terms")) for r in levels] == [True, False]
+
+
+def test_reference_alone_and_unknown_reference_in_the_cli(cpu, cli, tmp_path):
+    forward = np.array([[0.0, 0.006, 0.0], [0.007, 0.974, 0.007], [0.0, 0.006, 0.0]])
+    hdu = fits.PrimaryHDU()
+    hdu.header["REFTYPE"] = "IPC"
+    hdu.header["TELESCOP"] = "JWST"
+    ref = tmp_path / "jwst_ipc.fits"
+    fits.HDUList([hdu, fits.ImageHDU(reffiles.invert_kernel(forward), name="SCI")]).writeto(ref)
+    out = tmp_path / "m.json"
+    r = cli("calibrate", "--reference", str(ref), "-o", str(out))
+    assert r.returncode == 0, r.stderr
+    model, doc = CouplingModel.load(out, with_document=True)
+    assert model.geometry.weight(0, 1) * model.law.alpha(0.0, 0.0) == pytest.approx(0.007,
+                                                                                    rel=0.02)
+    assert doc["fit"]["chosen"] == "reference file"
+    other = tmp_path / "flat_ref.fits"
+    h = fits.PrimaryHDU(np.ones((3, 3)))
+    h.header["REFTYPE"] = "FLAT"
+    h.writeto(other)
+    r = cli("calibrate", "--reference", str(other), "-o", str(tmp_path / "n.json"))
+    assert r.returncode == 2
+    assert "flat_ref.fits: not an IPC reference file of a known kind" in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1 and not (tmp_path / "n.json").exists()
+
+
+def test_independent_generator_couples_like_a_pixel_loop():
+    """The blind generator's vectorised coupling against a plain loop over pixels and offsets."""
+    rng = np.random.default_rng(0)
+    s = rng.uniform(0, 6e4, (9, 11))
+    out = s.copy()
+    for y in range(9):
+        for x in range(11):
+            for (dy, dx), w in ipcgen.WEIGHTS.items():
+                qy, qx = y + dy, x + dx
+                inside = 0 <= qy < 9 and 0 <= qx < 11
+                flow = w * ipcgen.LAWS["rising"](s[y, x], s[qy, qx] if inside else 0.0) * s[y, x]
+                out[y, x] -= flow
+                if inside:
+                    out[qy, qx] += flow
+    assert np.abs(ipcgen.couple(s, "rising") - out).max() < 1e-9

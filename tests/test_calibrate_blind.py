@@ -15,11 +15,12 @@ from tests.independent import ipcgen
 AXES = {"x": (0, 1), "y": (1, 0)}
 
 
-@pytest.fixture(scope="module", params=["falling", "rising"])
+@pytest.fixture(scope="module", params=["falling", "rising", "constant"])
 def blind(request, tmp_path_factory):
     kind = request.param
     folder = tmp_path_factory.mktemp(f"blind_{kind}")
-    files = ipcgen.write_blind_set(str(folder), kind, seed=3 if kind == "falling" else 7)
+    files = ipcgen.write_blind_set(str(folder), kind,
+                                   seed={"falling": 3, "rising": 7, "constant": 13}[kind])
     return kind, folder, files
 
 

@@ -64,21 +64,33 @@ def truth_per_axis(kind, signal, neighbour):
 
 
 def couple(signal, kind, weights=WEIGHTS):
-    """One coupling step on the true charge (zero charge outside the frame)."""
+    """One coupling step on the true charge (zero charge outside the frame).
+
+    For each pair of offsets ``{d, -d}`` the law is evaluated once per pixel
+    pair ``(x, x + d)``, ``a = alpha(S_x, S_{x+d})``; ``x`` sends ``w(d) a S_x`` to
+    ``x + d`` and receives ``w(-d) a S_{x+d}`` (the hidden laws are symmetric).
+    """
     s = np.asarray(signal, dtype=np.float64)
     alpha = LAWS[kind]
     ny, nx = s.shape
     pad = 2
-    padded = np.zeros((ny + 2 * pad, nx + 2 * pad))
-    padded[pad:-pad, pad:-pad] = s
-    out = np.zeros_like(padded)
-    out[pad:-pad, pad:-pad] = s
+    P = np.zeros((ny + 2 * pad, nx + 2 * pad))
+    P[pad:-pad, pad:-pad] = s
+    out = P.copy()
+    H, W = P.shape
+    done = set()
     for (dy, dx), w in weights.items():
-        # the pixel p sends to q = p + d: w * alpha(S_p, S_q) * S_p
-        q = padded[pad + dy:pad + dy + ny, pad + dx:pad + dx + nx]
-        flow = w * alpha(s, q) * s
-        out[pad:-pad, pad:-pad] -= flow
-        out[pad + dy:pad + dy + ny, pad + dx:pad + dx + nx] += flow
+        if (-dy, -dx) in done:
+            continue
+        done.add((dy, dx))
+        back = weights.get((-dy, -dx), 0.0)
+        a_sl = (slice(max(-dy, 0), H - max(dy, 0)), slice(max(-dx, 0), W - max(dx, 0)))
+        b_sl = (slice(max(dy, 0), H + min(dy, 0)), slice(max(dx, 0), W + min(dx, 0)))
+        A = alpha(P[a_sl], P[b_sl])
+        forward = w * A * P[a_sl]   # x -> x + d
+        backward = back * A * P[b_sl]  # x + d -> x
+        out[a_sl] += backward - forward
+        out[b_sl] += forward - backward
     return out[pad:-pad, pad:-pad]
 
 
