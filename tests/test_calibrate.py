@@ -305,3 +305,24 @@ def test_independent_generator_couples_like_a_pixel_loop():
                 if inside:
                     out[qy, qx] += flow
     assert np.abs(ipcgen.couple(s, "rising") - out).max() < 1e-9
+
+
+def test_roman_asdf_ramp_darks(cpu, tmp_path):
+    rdm = pytest.importorskip("roman_datamodels.datamodels")
+    rng = np.random.default_rng(5)
+    shape = (96, 96)
+    truth = np.full((3,) + shape, 2.0)
+    for k, (y, x) in enumerate([(20, 20), (20, 60), (60, 20), (60, 60), (40, 40), (75, 75)]):
+        truth[:, y, x] = np.array([1, 2, 3]) * (4000.0 + 3000.0 * k)
+    ramp = np.array([ipcgen.couple(t, "constant") for t in truth]) + rng.normal(0, 3.0,
+                                                                                 truth.shape)
+    model = rdm.RampModel.create_fake_data(shape=(3,) + shape)
+    model.data = (ramp / 2.0).astype(np.float32)
+    model.pixeldq = np.zeros(shape, dtype=np.uint32)
+    model.groupdq = np.zeros((3,) + shape, dtype=np.uint8)
+    src = tmp_path / "dark.asdf"
+    model.save(src)
+    res = calibrate([str(src)], gain=2.0, refpix=0)
+    assert res["report"]["hot_pixels"]["found"] == 6
+    got = res["model"].geometry.weight(1, 0) * res["model"].law.alpha(1e4, 0.0)
+    assert got == pytest.approx(0.92 * 0.0055, rel=0.05)

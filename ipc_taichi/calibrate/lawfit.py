@@ -134,7 +134,7 @@ class SmoothLaw:
         return (1 - t) * self.curve_d(0.5 * total) + t * self.curve_h(total)
 
 
-def _design(S, N, deg, rng):
+def _design(S, deg, rng):
     u = np.log10(np.clip(S, rng[0], rng[1])) - math.log10(rng[0])
     return np.stack([u ** (deg - j) for j in range(deg + 1)], axis=1)
 
@@ -147,11 +147,11 @@ def _fit_smooth(S, N, A, E, src, dh, dd):
     t = np.where(total > 0, np.abs(S - N) / total, 0.0)
     cols = []
     if hot.any():
-        cols.append(t[:, None] * _design(total, N, dh, h_range) if flat.any()
-                    else _design(total, N, dh, h_range))
+        cols.append(t[:, None] * _design(total, dh, h_range) if flat.any()
+                    else _design(total, dh, h_range))
     if flat.any():
-        cols.append((1 - t)[:, None] * _design(0.5 * total, N, dd, d_range) if hot.any()
-                    else _design(0.5 * total, N, dd, d_range))
+        cols.append((1 - t)[:, None] * _design(0.5 * total, dd, d_range) if hot.any()
+                    else _design(0.5 * total, dd, d_range))
     X = np.concatenate(cols, axis=1) / E[:, None]
     y = A / E
     coef, *_ = np.linalg.lstsq(X, y, rcond=None)

@@ -17,7 +17,7 @@ import numpy as np
 
 from .hotpixels import DIRECTIONS
 
-__all__ = ["write_json", "write_figures"]
+__all__ = ["write_json", "write_figures", "json_ready"]
 
 
 def _json_value(value):
@@ -30,12 +30,12 @@ def _json_value(value):
     raise TypeError(f"cannot write {type(value).__name__} to a report")
 
 
-def _clean(value):
-    """NaN and infinities become None (JSON has no NaN)."""
+def json_ready(value):
+    """A copy with NaN and infinities as None (JSON has no NaN) and tuples as lists."""
     if isinstance(value, dict):
-        return {str(k): _clean(v) for k, v in value.items()}
+        return {str(k): json_ready(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
-        return [_clean(v) for v in value]
+        return [json_ready(v) for v in value]
     if isinstance(value, (float, np.floating)):
         return float(value) if np.isfinite(value) else None
     return value
@@ -46,7 +46,7 @@ def write_json(document, path, overwrite=False):
     path = os.fspath(path)
     if os.path.exists(path) and not overwrite:
         raise FileExistsError(f"{path}: exists (use --overwrite to replace it)")
-    text = json.dumps(_clean(document), indent=1, allow_nan=False, default=_json_value)
+    text = json.dumps(json_ready(document), indent=1, allow_nan=False, default=_json_value)
     fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".json",
                                dir=os.path.dirname(os.path.abspath(path)))
     try:

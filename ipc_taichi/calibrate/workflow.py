@@ -11,6 +11,7 @@ with measurements it is reported beside them for comparison.
 """
 
 import datetime
+import os
 
 import numpy as np
 
@@ -119,12 +120,9 @@ def calibrate(darks=(), flats=(), reference=None, output=None, *, report_path=No
     darks, flats = list(darks or ()), list(flats or ())
     if not darks and not flats and reference is None:
         raise IPCInputError("calibrate needs darks, flats or a reference file")
-    for path in (output, report_path):
-        if path is not None and not overwrite:
-            import os
-
-            if os.path.exists(path):
-                raise FileExistsError(f"{path}: exists (use --overwrite to replace it)")
+    for path in (output, report_path):  # fail before measuring
+        if path is not None and not overwrite and os.path.exists(path):
+            raise FileExistsError(f"{path}: exists (use --overwrite to replace it)")
     dark_frames = [read_frames(p, hdu, gain, dq_bits, refpix) for p in darks]
     flat_frames = [read_frames(p, hdu, gain, dq_bits, refpix) for p in flats]
     _check_shapes(dark_frames + flat_frames)
@@ -172,7 +170,7 @@ def calibrate(darks=(), flats=(), reference=None, output=None, *, report_path=No
                           "growth_with_signal": growth},
                 "reference": ref, "not_measured": not_measured}
     if output is not None:
-        model.save(output, provenance=provenance, fit=report._clean(summary),
+        model.save(output, provenance=provenance, fit=report.json_ready(summary),
                    overwrite=overwrite)
     if report_path is not None:
         report.write_json(document, report_path, overwrite=overwrite)
