@@ -24,7 +24,10 @@ nearest-neighbour covariance and variance are
 
 so ``C(1,0) ~ 2 a C(0,0)`` to O(a): for a constant law, the covariance is
 about twice alpha times the variance. :func:`alpha_from_flat` solves the
-ratio of the two for ``a`` (the read noise known from darks), so no gain is needed.
+covariances exactly for the kernel (the read noise known from darks), so no
+gain is needed; the measurement itself is that of ``ipc-taichi calibrate``
+(:mod:`ipc_taichi.calibrate.flats`: masks, NaN, per-axis terms with errors),
+and so is the hot-pixel one (:mod:`ipc_taichi.calibrate.hotpixels`).
 
 For the symmetric laws of this project (``alpha(S, N) = alpha(N, S)``, which
 charge conservation needs) ``d1 alpha = d2 alpha`` on the diagonal and the
@@ -80,8 +83,16 @@ def autocovariance(frames, lags=_LAGS):
     return out / len(stack)
 
 
-def alpha_from_flat(frames, read_noise=0.0, border=2, lags=_LAGS):
-    """alpha from the nearest-neighbour covariance of flat fields (4-neighbour kernel).
+def alpha_from_flat(frames, read_noise=0.0, border=2, lags=_LAGS, mask=None,
+                    cancel_pattern=None):
+    """alpha from the noise covariances of flat fields, per axis, with errors.
+
+    The measurement is :mod:`ipc_taichi.calibrate.flats` (the one
+    implementation): covariances at lags (0,0), (0,1), (1,0), (1,1), (0,2),
+    (2,0) with masks and NaN left out, solved exactly for ``V`` and the five
+    terms of a symmetric 5x5 kernel (``C(l) = V sum_j K[j] K[j+l]``, read
+    noise at lag 0), so no gain is needed and no small-alpha approximation is
+    made.
 
     Parameters
     ----------
@@ -94,46 +105,46 @@ def alpha_from_flat(frames, read_noise=0.0, border=2, lags=_LAGS):
         Pixels dropped at each frame edge: with the zero edge, the outermost
         pixels lose charge off the frame, a step that would add to the
         covariance (laboratories likewise leave the border out).
+    lags : int
+        Kept for compatibility (the lags are those of the 5x5 kernel).
+    mask : ndarray of bool, optional
+        Pixels not to use (NaN pixels are left out too).
+    cancel_pattern : bool or None
+        Difference the frames to cancel a fixed pattern (default: when there
+        are >= 2 frames); one frame is only mean-subtracted.
 
     Returns
     -------
     dict
-        ``alpha`` solving ``C(1,0) / (C(0,0) - read_noise^2) =
-        2a(1 - 4a) / ((1 - 4a)^2 + 4a^2)`` (the ratio of the flat's covariance to
-        its shot-noise variance; no gain needed), ``alpha_x`` and ``alpha_y``
-        (from the horizontal and vertical covariances alone), ``cov_nn`` (mean
-        of the 4 nearest-neighbour covariances), ``var`` (``C(0,0)``), ``ratio``
-        ``= cov_nn / var`` and ``V`` (the shot-noise variance the solution implies).
+        ``alpha`` (mean of ``alpha_x`` and ``alpha_y`` weighted by their
+        errors), ``alpha_x``, ``alpha_y`` (the kernel's horizontal and
+        vertical terms; a negative value is reported as measured, not NaN),
+        their errors ``alpha_err``, ``alpha_x_err``, ``alpha_y_err``,
+        ``terms`` (all five, with errors), ``cov_nn`` (mean of the
+        nearest-neighbour covariances), ``var`` (``C(0,0)``), ``ratio``
+        ``= cov_nn / var`` and ``V`` (the shot-noise variance).
     """
-    from scipy.optimize import brentq
+    from ipc_taichi.calibrate.flats import flat_covariances, solve_kernel
 
     stack = np.asarray(frames, dtype=np.float64)
     if stack.ndim == 2:
         stack = stack[None]
-    b = int(border)
-    if b:
-        stack = stack[:, b:-b, b:-b]
-    c = autocovariance(stack, lags)
-    k = lags
-    shot = c[k, k] - float(read_noise) ** 2
-    cx = 0.5 * (c[k, k - 1] + c[k, k + 1])
-    cy = 0.5 * (c[k - 1, k] + c[k + 1, k])
-    cov = 0.5 * (cx + cy)
-
-    def ratio(a):
-        return 2 * a * (1 - 4 * a) / ((1 - 4 * a) ** 2 + 4 * a ** 2)
-
-    def solve(cn):
-        target = cn / shot
-        # ratio() rises monotonically from 0 on [0, 0.1]; outside, no 4-neighbour kernel fits
-        if not 0.0 <= target <= ratio(0.1):
-            return float("nan")
-        return float(brentq(lambda a: ratio(a) - target, 0.0, 0.1, xtol=1e-14))
-
-    alpha = solve(cov)
-    return {"alpha": alpha, "alpha_x": solve(cx), "alpha_y": solve(cy), "cov_nn": cov,
-            "var": c[k, k], "ratio": cov / c[k, k],
-            "V": shot / ((1 - 4 * alpha) ** 2 + 4 * alpha ** 2)}
+    if cancel_pattern is None:
+        cancel_pattern = stack.shape[0] >= 2
+    cov = flat_covariances(stack, mask, border, cancel_pattern=cancel_pattern)
+    solved = solve_kernel(cov, read_noise)
+    t = solved["terms"]
+    ax, ex = t["x"]["value"], t["x"]["error"]
+    ay, ey = t["y"]["value"], t["y"]["error"]
+    wx, wy = 1.0 / ex ** 2, 1.0 / ey ** 2
+    alpha = (wx * ax + wy * ay) / (wx + wy)
+    cx = cov["0,1"]["cov"]
+    cy = cov["1,0"]["cov"]
+    cov_nn = 0.5 * (cx + cy)
+    var = cov["0,0"]["cov"]
+    return {"alpha": float(alpha), "alpha_err": float(1.0 / np.sqrt(wx + wy)),
+            "alpha_x": ax, "alpha_y": ay, "alpha_x_err": ex, "alpha_y_err": ey,
+            "terms": t, "cov_nn": cov_nn, "var": var, "ratio": cov_nn / var, "V": solved["V"]}
 
 
 def flat_covariance_prediction(alpha, V, read_noise=0.0):
@@ -209,28 +220,40 @@ def couple_source_law(signal, a_of_s):
 def hot_pixel_alpha(measured, positions, background=0.0):
     """alpha of single-pixel events: mean neighbour excess over the event's total charge.
 
+    The measurement is :func:`ipc_taichi.calibrate.hotpixels.measure_events`
+    (the one implementation): the fraction of each offset of the 5x5 box, the
+    total over the box (which holds every coupled neighbour, so the fraction
+    is exactly ``w alpha(S, B)`` in the one-step model).
+
     Parameters
     ----------
     measured : ndarray
         The coupled frame (with noise).
     positions : ndarray of int, shape (k, 2)
-        ``(y, x)`` of each hot pixel (isolated: its 3x3 box holds no other event).
-    background : float
+        ``(y, x)`` of each hot pixel (isolated, at least 3 pixels from the edge).
+    background : float or None
         The dark level [e-] subtracted from each pixel of the box (known from
-        the dark frames; here the level the frame was made with).
+        the dark frames); None: the median of each event's ring at distance 3.
 
     Returns
     -------
     alpha : ndarray, shape (k,)
-        ``mean(4 neighbours - B) / sum(3x3 box - B)`` for each event.
+        ``mean(4 neighbours - B) / sum(5x5 box - B)`` for each event (NaN
+        where the box holds NaN or leaves the frame).
     total : ndarray, shape (k,)
         The event's total charge in its box [e-].
     """
-    m = np.asarray(measured, dtype=np.float64) - float(background)
-    y, x = np.asarray(positions, dtype=int).T
-    neighbours = (m[y - 1, x] + m[y + 1, x] + m[y, x - 1] + m[y, x + 1]) / 4.0
-    total = sum(m[y + dy, x + dx] for dy in (-1, 0, 1) for dx in (-1, 0, 1))
-    return neighbours / total, total
+    from ipc_taichi.calibrate.hotpixels import measure_events
+
+    positions = np.asarray(positions, dtype=int).reshape(-1, 2)
+    ev = measure_events(np.asarray(measured, dtype=np.float64), positions,
+                        background=background)
+    alpha = np.full(len(positions), np.nan)
+    total = np.full(len(positions), np.nan)
+    frac = ev["fraction"].reshape(-1, 5, 5)
+    alpha[ev["event"]] = (frac[:, 1, 2] + frac[:, 3, 2] + frac[:, 2, 1] + frac[:, 2, 3]) / 4.0
+    total[ev["event"]] = ev["signal"]
+    return alpha, total
 
 
 def measure_flats(levels, law="donlon2018", size=512, n_frames=2, read_noise=10.0, seed=0,
@@ -255,10 +278,10 @@ def measure_flats(levels, law="donlon2018", size=512, n_frames=2, read_noise=10.
     Returns
     -------
     list of dict
-        Per level: the :func:`alpha_from_flat` values plus ``level``,
-        ``alpha_lin`` (:func:`linearised_alpha`), ``alpha_diag``
-        (``alpha(S, S)``, for the project's laws), ``alpha_err`` (the standard
-        error of ``alpha``, ``1 / (2 sqrt(2 N))`` for ``N`` pixels in all).
+        Per level: the :func:`alpha_from_flat` values (with ``alpha_err``,
+        the standard error from the scatter of the covariance products) plus
+        ``level``, ``alpha_lin`` (:func:`linearised_alpha`) and ``alpha_diag``
+        (``alpha(S, S)``, for the project's laws).
     """
     from ipc_taichi.datasets import flat
     from ipc_taichi.detector import collect, expose, read_noise as draw_read_noise
@@ -276,11 +299,9 @@ def measure_flats(levels, law="donlon2018", size=512, n_frames=2, read_noise=10.
                 signal = collect(expected, rng)
                 frames.append(coupler(signal) + draw_read_noise(signal.shape, read_noise, rng))
         frames = np.array(frames)
-        row = alpha_from_flat(frames, read_noise)
-        # each of the x and y covariances averages N products of nearly independent
-        # noise (N pixels in all): the ratio's standard error is 1/sqrt(2N), alpha's half that
-        n_pix = frames.shape[0] * (size - 4) ** 2
-        row["alpha_err"] = 1.0 / (2.0 * np.sqrt(2.0 * n_pix))
+        # simulated flats have no fixed pattern: each frame is only mean-subtracted, so
+        # every frame's noise counts (real flats are differenced: calibrate.flats)
+        row = alpha_from_flat(frames, read_noise, cancel_pattern=False)
         row["level"] = float(level)
         row["alpha_lin"] = float(linearised_alpha(level, law, coupler)[0])
         row["alpha_diag"] = (float(get_law(law).alpha(level, level)) if coupler is None
@@ -308,9 +329,10 @@ def measure_hot_pixels(levels, law="donlon2018", background=0.0, read_noise=10.0
     rows = []
     for k, level in enumerate(levels):
         expected, positions = hot_pixels((size, size), n_per_frame, level, background=background,
-                                         seed=seed + k, isolation=3)
+                                         seed=seed + k, isolation=5)
         measured = expose(expected, law, read_noise, rng).measured
         alpha, _ = hot_pixel_alpha(measured, positions, background)
+        alpha = alpha[np.isfinite(alpha)]
         rows.append({"level": float(level), "alpha": float(alpha.mean()),
                      "alpha_err": float(alpha.std(ddof=1) / np.sqrt(alpha.size)),
                      "n": int(alpha.size),

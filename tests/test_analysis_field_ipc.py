@@ -96,3 +96,34 @@ def test_alpha_from_flat_inverts_the_prediction():
     row = alpha_from_flat(coupled, border=0)
     assert row["alpha"] == pytest.approx(a, abs=3 / (2 * np.sqrt(2 * 600 ** 2)))
     assert row["V"] == pytest.approx(1e4, rel=0.02)
+
+
+def test_alpha_from_flat_masks_nan_and_reports_each_axis_with_errors():
+    """The calibrate measurement: NaN and masked junk left out, x and y apart, errors."""
+    from tests.independent import ipcgen
+
+    rng = np.random.default_rng(3)
+    level = 30000.0
+    frames = np.array([ipcgen.couple(rng.poisson(level, (256, 256)).astype(float), "constant")
+                       for _ in range(4)])
+    frames[:, 100, 100] = np.nan
+    mask = np.zeros((256, 256), bool)
+    mask[10:20, 30:40] = True
+    frames[:, 10:20, 30:40] = -1e6
+    row = alpha_from_flat(frames, read_noise=0.0, mask=mask)
+    assert np.isfinite(row["alpha"])
+    truth_x, truth_y = 1.08 * 0.0055, 0.92 * 0.0055
+    assert row["alpha_x"] == pytest.approx(truth_x, abs=4 * row["alpha_x_err"])
+    assert row["alpha_y"] == pytest.approx(truth_y, abs=4 * row["alpha_y_err"])
+    assert row["alpha_x_err"] == pytest.approx(1 / (2 * np.sqrt(3 * 252 ** 2)), rel=0.3)
+    assert row["terms"]["diagonal"]["value"] == pytest.approx(0.08 * 0.0055, abs=1.2e-3)
+
+
+def test_alpha_from_flat_negative_covariance_is_reported_not_nan():
+    rng = np.random.default_rng(2)
+    noise = rng.normal(0.0, 100.0, (3, 200, 200))
+    # anti-correlated neighbours along x: a negative term, measured as such
+    frames = noise - 0.02 * (np.roll(noise, 1, axis=2) + np.roll(noise, -1, axis=2)) + 1e4
+    row = alpha_from_flat(frames, border=2)
+    assert row["alpha_x"] < -5 * row["alpha_x_err"]
+    assert abs(row["alpha_y"]) < 4 * row["alpha_y_err"]

@@ -81,8 +81,9 @@ of 200 isolated hot pixels on a zero dark background, through the shared detecto
 (Poisson draw, `donlon2018` coupling with 4 neighbours and zero edge, {READ_NOISE:g} e- read
 noise); 2 px at the frame edges left out of the autocorrelation. alpha from a flat: the
 nearest-neighbour covariance over the shot-noise variance (read noise known), solved for
-the constant 4-neighbour kernel `[a, 1 - 4a, a]`; from a hot pixel: mean neighbour excess
-over the event's total. Errors are standard errors.
+the constant symmetric 5x5 kernel exactly (`ipc_taichi.calibrate.flats`, the code of
+`ipc-taichi calibrate`); from a hot pixel: mean neighbour excess over the event's 5x5
+total. Errors are standard errors.
 
 **What a flat measures.** Linearising the coupling around a flat of level S, the charge a
 neighbour gains per electron of noise in a pixel is

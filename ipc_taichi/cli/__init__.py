@@ -26,7 +26,7 @@ from .. import __version__
 from ..errors import ConvergenceWarning, DivergenceError
 from ..interrupts import clear_stop, request_stop
 from ..products.conventions import ProductWarning
-from . import bench, demo, discover, frames
+from . import bench, calibrate, demo, discover, frames
 
 __all__ = ["main", "build_parser", "Terminated"]
 
@@ -54,6 +54,7 @@ def build_parser():
     demo.add_parser(sub)
     bench.add_parser(sub)
     discover.add_parsers(sub)
+    calibrate.add_parser(sub)
     return parser
 
 

@@ -1,0 +1,303 @@
+"""Hot pixels: alpha(S, 0) per direction from darks and ramps.
+
+A hot pixel is a single pixel whose own dark current is much larger than its
+neighbours'. In the forward model (one coupling step on the true signal, the
+paper's Eq. 6) a pixel of charge ``S`` on a background ``B`` gives each
+neighbour at offset ``d`` the excess ``w(d) alpha(S, B) (S - B)``; charge is
+conserved, so the sum of the excess over a box that holds every coupled
+neighbour is ``S - B``. The fraction
+
+    f(d) = excess(d) / sum(excess over the 5x5 box)
+
+is therefore exactly ``w(d) alpha(S, B)``: a row of the law far from its
+diagonal (``B`` is a few electrons of dark current, so ``alpha(S, 0)``).
+
+Procedure (all vectorised):
+
+1. **Find** candidates in the frame of largest charge (the last group of each
+   integration): a local maximum in 3x3 that rises above the local background
+   by ``threshold`` robust standard deviations. **Isolated**: no other
+   candidate within ``isolation`` pixels, every other pixel of the 5x5 box
+   below ``max_neighbour`` of the centre's excess (a cosmic ray or a cluster
+   spreads further), no masked (DQ) or non-finite pixel in the 7x7 box.
+2. **Measure** in every group (a ramp follows each hot pixel group by group,
+   so one pixel gives as many signal levels as groups): the local background
+   is the median of the 24-pixel ring at distance 3 (beyond the reach of the
+   coupling); ``S`` is the box's total excess; the fraction of each offset.
+   A group where the box holds a masked pixel (GROUPDQ: saturation, jump)
+   is skipped.
+3. **Summarise** per direction (``x``: (0, +-1); ``y``: (+-1, 0);
+   ``diagonal``: (+-1, +-1); ``second_x``: (0, +-2); ``second_y``: (+-2, 0))
+   in logarithmic signal bins: a sigma-clipped mean, its error from the
+   scatter (clipped standard deviation / sqrt(n)), and the two halves of each
+   direction (left/right, down/up) to show asymmetry.
+
+Images are ``image[y, x]``; the geometry convention is that of
+:mod:`ipc_taichi.geometry`.
+"""
+
+import numpy as np
+from scipy import ndimage
+
+from ..errors import IPCInputError
+
+__all__ = ["DIRECTIONS", "find_hot_pixels", "measure_events", "summarise_events",
+           "read_noise_from_darks"]
+
+DIRECTIONS = {
+    "x": ((0, 1), (0, -1)),
+    "y": ((1, 0), (-1, 0)),
+    "diagonal": ((1, 1), (1, -1), (-1, 1), (-1, -1)),
+    "second_x": ((0, 2), (0, -2)),
+    "second_y": ((2, 0), (-2, 0)),
+}
+"""Direction name -> the offsets ``(dy, dx)`` it averages."""
+
+_BOX = [(dy, dx) for dy in range(-2, 3) for dx in range(-2, 3)]
+_RING = [(dy, dx) for dy in range(-3, 4) for dx in range(-3, 4) if max(abs(dy), abs(dx)) == 3]
+_WIDE = [(dy, dx) for dy in range(-3, 4) for dx in range(-3, 4)]
+
+
+def _robust_sigma(values):
+    values = values[np.isfinite(values)]
+    if values.size < 2:
+        return float("nan")
+    return float(1.4826 * np.median(np.abs(values - np.median(values))))
+
+
+def _gather(frame, y, x, offsets):
+    """``frame[y + dy, x + dx]`` for every event (rows) and offset (columns)."""
+    dy = np.array([o[0] for o in offsets])
+    dx = np.array([o[1] for o in offsets])
+    return frame[y[:, None] + dy[None, :], x[:, None] + dx[None, :]]
+
+
+def find_hot_pixels(frame, mask=None, threshold=30.0, isolation=3, max_neighbour=0.1,
+                    min_excess=0.0):
+    """Positions ``(y, x)`` of isolated hot pixels in a frame of charge.
+
+    Parameters
+    ----------
+    frame : ndarray, (ny, nx)
+        Charge [e-] (a dark, or the last group of a ramp).
+    mask : ndarray of bool, optional
+        Pixels not to trust (DQ, NaN are added).
+    threshold : float
+        Detection level in robust standard deviations of the frame above its
+        local background.
+    isolation : int
+        No other candidate within this many pixels (Chebyshev distance).
+    max_neighbour : float
+        Every other pixel of the 5x5 box must hold less than this fraction of
+        the centre's excess.
+    min_excess : float
+        Lowest accepted excess [e-].
+
+    Returns
+    -------
+    ndarray of int, shape (k, 2)
+    """
+    frame = np.asarray(frame, dtype=np.float64)
+    if frame.ndim != 2:
+        raise IPCInputError(f"find_hot_pixels needs a 2-D frame, got shape {frame.shape}")
+    bad = ~np.isfinite(frame) if mask is None else (np.asarray(mask, bool) | ~np.isfinite(frame))
+    ny, nx = frame.shape
+    if ny < 8 or nx < 8:
+        return np.zeros((0, 2), dtype=int)
+    clean = np.where(bad, np.nanmedian(frame[~bad]) if (~bad).any() else 0.0, frame)
+    level = float(np.median(clean))
+    sigma = _robust_sigma(clean[::max(1, ny // 512), ::max(1, nx // 512)] - level)
+    if not np.isfinite(sigma) or sigma <= 0:  # noise-free: any excess is a detection
+        sigma = 1e-9 * max(abs(level), 1.0)
+    peak = clean == ndimage.maximum_filter(clean, size=3, mode="nearest")
+    cand = peak & (clean > level + threshold * sigma) & ~bad
+    cand[:3, :] = cand[-3:, :] = False
+    cand[:, :3] = cand[:, -3:] = False
+    y, x = np.nonzero(cand)
+    if y.size == 0:
+        return np.zeros((0, 2), dtype=int)
+    # isolation from other candidates (peaks above the threshold; a bright pixel's coupled
+    # neighbours rise above it too but are not peaks, and the box test below catches pairs)
+    hot = peak & (clean > level + threshold * sigma)
+    near = ndimage.uniform_filter(hot.astype(np.float64), size=2 * isolation + 1,
+                                  mode="constant") * (2 * isolation + 1) ** 2
+    alone = np.rint(near[y, x]) <= 1
+    # masked or non-finite pixels near the event
+    bad_near = ndimage.maximum_filter(bad.astype(np.uint8), size=7, mode="constant")[y, x] > 0
+    y, x = y[alone & ~bad_near], x[alone & ~bad_near]
+    if y.size == 0:
+        return np.zeros((0, 2), dtype=int)
+    background = np.median(_gather(clean, y, x, _RING), axis=1)
+    box = _gather(clean, y, x, _BOX) - background[:, None]
+    centre = box[:, _BOX.index((0, 0))]
+    others = np.delete(box, _BOX.index((0, 0)), axis=1)
+    keep = (np.max(others, axis=1) < max_neighbour * centre) & (centre > float(min_excess))
+    return np.stack([y[keep], x[keep]], axis=1)
+
+
+def measure_events(groups, positions, mask=None, background=None):
+    """The fraction of each box offset for every hot pixel in every group.
+
+    Parameters
+    ----------
+    groups : ndarray, (ngroups, ny, nx)
+        Charge [e-] of each group (one integration), or a stack of frames.
+    positions : ndarray of int, (k, 2)
+    mask : ndarray of bool, (ny, nx) or (ngroups, ny, nx), optional
+    background : float, optional
+        A known background [e-] (default: the median of each event's ring).
+
+    Returns
+    -------
+    dict of ndarray, one value per measurement (event x group, skipped ones
+    dropped): ``signal`` (total excess [e-]), ``background`` [e-],
+    ``fraction`` (shape (m, 25): the 5x5 box, row-major, offsets -2..2),
+    ``event`` (index into ``positions``), ``group``.
+    """
+    groups = np.asarray(groups, dtype=np.float64)
+    if groups.ndim == 2:
+        groups = groups[None]
+    positions = np.asarray(positions, dtype=int).reshape(-1, 2)
+    y, x = positions.T
+    ny, nx = groups.shape[-2:]
+    inside = (y >= 3) & (y < ny - 3) & (x >= 3) & (x < nx - 3)  # the ring must fit
+    y, x = np.where(inside, y, 3), np.where(inside, x, 3)
+    out = {k: [] for k in ("signal", "background", "fraction", "event", "group")}
+    for g, frame in enumerate(groups):
+        if positions.shape[0] == 0:
+            break
+        if background is None:
+            level = np.median(_gather(frame, y, x, _RING), axis=1)
+        else:
+            level = np.full(len(y), float(background))
+        box = _gather(frame, y, x, _BOX) - level[:, None]
+        ok = np.all(np.isfinite(box), axis=1) & np.isfinite(level) & inside
+        if mask is not None:
+            m = np.asarray(mask, bool)
+            m = m[g] if m.ndim == 3 else m
+            ok &= ~np.any(_gather(m, y, x, _WIDE), axis=1)
+        total = box.sum(axis=1)
+        ok &= total > 0
+        out["signal"].append(total[ok])
+        out["background"].append(level[ok])
+        out["fraction"].append(box[ok] / total[ok, None])
+        out["event"].append(np.flatnonzero(ok))
+        out["group"].append(np.full(int(ok.sum()), g))
+    if not out["signal"]:
+        return {"signal": np.zeros(0), "background": np.zeros(0),
+                "fraction": np.zeros((0, 25)), "event": np.zeros(0, int),
+                "group": np.zeros(0, int)}
+    return {k: np.concatenate(v) for k, v in out.items()}
+
+
+def _clipped(values, nsigma=3.0, rounds=5):
+    """Sigma-clipped mean, its standard error from the scatter, the number kept."""
+    v = values[np.isfinite(values)]
+    for _ in range(rounds):
+        if v.size < 3:
+            break
+        med = np.median(v)
+        s = _robust_sigma(v)
+        if not s > 0:
+            break
+        keep = np.abs(v - med) <= nsigma * s
+        if keep.all():
+            break
+        v = v[keep]
+    if v.size == 0:
+        return float("nan"), float("nan"), 0
+    err = float(np.std(v, ddof=1) / np.sqrt(v.size)) if v.size > 1 else float("nan")
+    return float(np.mean(v)), err, int(v.size)
+
+
+def summarise_events(events, bins=None, min_signal=200.0, per_decade=6, min_count=10,
+                     max_fraction=0.1):
+    """alpha(S, 0) per direction in logarithmic signal bins.
+
+    Parameters
+    ----------
+    events : dict
+        From :func:`measure_events` (or several concatenated).
+    bins : array_like, optional
+        Bin edges [e-]; default ``per_decade`` logarithmic bins from
+        ``min_signal`` to the largest signal, sparse ones merged with their
+        neighbours.
+    min_count : int
+        Bins with fewer measurements are merged (default bins) or left out.
+    max_fraction : float
+        A measurement where any pixel of the box other than the centre holds
+        more than this fraction of the total (either sign) is not coupling (a
+        bad neighbour, a cosmic ray) and is left out.
+
+    Returns
+    -------
+    list of dict
+        Per bin: ``signal`` (mean [e-]), ``signal_range``, ``n``, and per
+        direction ``{"value", "error", "halves": [first, second]}`` (the
+        halves are the two sides, e.g. +x and -x, each a clipped mean).
+    """
+    s = np.asarray(events["signal"], np.float64)
+    frac = np.asarray(events["fraction"], np.float64).reshape(-1, 25)
+    others = np.delete(frac, _BOX.index((0, 0)), axis=1) if frac.size else frac
+    use = (s >= float(min_signal)) & np.all(np.abs(others) <= float(max_fraction), axis=1)
+    if bins is None:
+        if not use.any():
+            return []
+        hi = float(s[use].max()) * 1.0001
+        n_bins = max(1, int(np.ceil(per_decade * np.log10(hi / min_signal))))
+        bins = _merge_sparse(np.geomspace(min_signal, hi, n_bins + 1), s[use], min_count)
+    bins = np.asarray(bins, np.float64)
+    rows = []
+    for lo, hi in zip(bins[:-1], bins[1:]):
+        sel = use & (s >= lo) & (s < hi)
+        if sel.sum() < min_count:
+            continue
+        row = {"signal": float(s[sel].mean()), "signal_range": [float(lo), float(hi)],
+               "background": float(np.mean(np.asarray(events["background"])[sel])),
+               "n": int(sel.sum())}
+        for name, offsets in DIRECTIONS.items():
+            cols = [_BOX.index(o) for o in offsets]
+            per_event = frac[sel][:, cols].mean(axis=1)
+            value, err, kept = _clipped(per_event)
+            half = len(cols) // 2
+            halves = [_clipped(frac[sel][:, cols[:half]].mean(axis=1))[0],
+                      _clipped(frac[sel][:, cols[half:]].mean(axis=1))[0]]
+            row[name] = {"value": value, "error": err, "n": kept, "halves": halves}
+        rows.append(row)
+    return rows
+
+
+def _merge_sparse(edges, values, min_count):
+    """Merge neighbouring bins until each holds >= ``min_count`` values (a few
+    hot pixels give a few wide bins rather than many with meaningless errors)."""
+    edges = list(edges)
+    k = 0
+    while k < len(edges) - 1 and len(edges) > 2:
+        n = np.sum((values >= edges[k]) & (values < edges[k + 1]))
+        if n >= min_count:
+            k += 1
+        elif k + 2 < len(edges):
+            del edges[k + 1]  # join with the next bin
+        else:
+            del edges[k]  # the last bin joins the one before
+            k = max(k - 1, 0)
+    return np.array(edges)
+
+
+def read_noise_from_darks(groups, mask=None):
+    """Read noise per read [e-] of a ramp or stack: the robust standard
+    deviation of differences of consecutive frames, over sqrt(2) (dark shot
+    noise between two reads is assumed small beside it)."""
+    groups = np.asarray(groups, dtype=np.float64)
+    if groups.ndim != 3 or groups.shape[0] < 2:
+        return None
+    values = []
+    for a, b in zip(groups[:-1], groups[1:]):
+        d = b - a
+        if mask is not None:
+            m = np.asarray(mask, bool)
+            d = np.where(m if m.ndim == 2 else m[0], np.nan, d)
+        d = d[::max(1, d.shape[0] // 256), ::max(1, d.shape[1] // 256)]
+        values.append(_robust_sigma(d - np.nanmedian(d)) / np.sqrt(2.0))
+    values = [v for v in values if np.isfinite(v)]
+    return float(np.median(values)) if values else None
