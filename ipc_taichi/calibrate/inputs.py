@@ -15,8 +15,14 @@ import numpy as np
 
 from ..errors import IPCInputError
 from ..fitsio import parse_hdu
+from ..products import conventions as cv
+from ..products import missions
+from ..products.fits import science_region_of
+from ..products.fitsfile import (flag_hdus, keyword, open_fits, read_array, science_indices,
+                                 shape_of)
+from ..products.gain import read_gain
 
-__all__ = ["Frames", "read_frames", "DEFAULT_DQ_BITS"]
+__all__ = ["ChargeFrames", "read_frames", "DEFAULT_DQ_BITS"]
 
 DEFAULT_DQ_BITS = "DO_NOT_USE,SATURATED,JUMP_DET,DEAD"
 """DQ bits whose pixels are left out of every measurement (HOT and WARM are
@@ -24,7 +30,7 @@ not among them: hot pixels are what the darks are measured with)."""
 
 
 @dataclass
-class Frames:
+class ChargeFrames:
     """Charge and mask of one input file."""
 
     path: str
@@ -45,7 +51,7 @@ def _as4d(array):
 
 
 def read_frames(path, hdu=None, gain=None, dq_bits=DEFAULT_DQ_BITS, refpix=None, bunit=None):
-    """Read a dark, ramp or flat product into :class:`Frames`.
+    """Read a dark, ramp or flat product into :class:`ChargeFrames`.
 
     Parameters
     ----------
@@ -62,57 +68,50 @@ def read_frames(path, hdu=None, gain=None, dq_bits=DEFAULT_DQ_BITS, refpix=None,
     bunit : str or None
         Override the file's units.
     """
-    from ..products.roman import is_asdf
-
-    if is_asdf(path):
+    if missions.is_asdf(path):
         return _read_asdf(path, gain, dq_bits, refpix, bunit)
     return _read_fits(path, hdu, gain, dq_bits, refpix, bunit)
 
 
 def _read_fits(path, hdu, gain, dq_bits, refpix, bunit):
-    from ..products import conventions as cv
-    from ..products import fits as pf
-
-    hdul = pf._open(path, memmap=False)
+    hdul = open_fits(path, memmap=False)
     with hdul:
-        index, label = pf._find_science(path, hdul, parse_hdu(hdu))
-        shape = pf._shape(hdul[index].header)
+        index, label = science_indices(path, hdul, parse_hdu(hdu))[0]
+        shape = shape_of(hdul[index].header)
         shape2d = shape[-2:]
-        units = cv.parse_units(bunit if bunit is not None else pf._keyword(hdul, index, "BUNIT"),
+        units = cv.parse_units(bunit if bunit is not None else keyword(hdul, index, "BUNIT"),
                                label)
         if units.rate:
             raise IPCInputError(f"{label}: a rate ({units.text}); calibrate needs darks, ramps "
                                 "or flats of accumulated charge (DN or electrons)")
-        gain_value = pf._read_gain(gain if gain is not None else pf._keyword(hdul, index, "GAIN"),
-                                   shape2d)
+        gain_value = read_gain(gain if gain is not None else keyword(hdul, index, "GAIN"),
+                               shape2d)
         scale, units_text = cv.charge_scale(units, gain_value, None, label)
-        data = np.asarray(pf._array(path, hdul, index, label), dtype=np.float64) * scale
+        data = np.asarray(read_array(path, hdul, index), dtype=np.float64) * scale
+        mission = missions.recognise(hdul[0].header, hdul[index].header)
         bits = _file_dq_bits(hdul, dq_bits, label)
         if bits is None:
-            bits = cv.parse_dq_bits(dq_bits) & ~cv.REFERENCE_PIXEL
-        flag_hdus = pf._dq_arrays(hdul, index, shape, path)
-        region, inside = pf._science_region(path, hdul, flag_hdus, shape2d, refpix, label)
+            bits = cv.parse_dq_bits(dq_bits, mission.dq_flags) & ~cv.REFERENCE_PIXEL
+        flags = flag_hdus(hdul, index, shape, path)
+        region, inside = science_region_of(path, hdul, index, flags, shape2d, refpix, mission,
+                                           label)
         mask = np.zeros(shape, dtype=bool)
-        for k, _ in flag_hdus:
-            flags = np.asarray(pf._array(path, hdul, k, label)).astype(np.int64)
-            mask |= (flags & bits) != 0
-        saturate = pf._keyword(hdul, index, "SATURATE")
+        for k in flags:
+            mask |= (np.asarray(read_array(path, hdul, k)).astype(np.int64) & bits) != 0
+        saturate = keyword(hdul, index, "SATURATE")
     return _finish(path, label, data, mask, region, inside, units_text,
                    {"saturation": None if saturate is None else float(saturate) * np.max(scale)})
 
 
 def _file_dq_bits(hdul, dq_bits, label):
-    """The bits of ``dq_bits`` by the file's own ``DQ_DEF`` table (reference
-    files define their own: a NIRSpec dark has HOT = 4, which is JUMP_DET in
-    science products); None when the file has no such table. Names the table
-    does not define are left out."""
-    if "DQ_DEF" not in hdul:
+    """The bits of ``dq_bits`` by the file's own ``DQ_DEF`` table alone
+    (reference files define their own: a NIRSpec dark has HOT = 4, which is
+    JUMP_DET in science products, so the mission's names must not fill in);
+    None when the file has no such table. Names the table does not define
+    are left out."""
+    names = missions.dq_def(hdul)
+    if not names:
         return None
-    try:
-        table = hdul["DQ_DEF"].data
-        names = {str(n).strip().upper(): int(v) for n, v in zip(table["NAME"], table["VALUE"])}
-    except (KeyError, TypeError, ValueError):
-        raise IPCInputError(f"{label}: the DQ_DEF table has no NAME/VALUE columns") from None
     bits = 0
     for item in str(dq_bits).replace("+", ",").split(","):
         item = item.strip()
@@ -124,8 +123,6 @@ def _file_dq_bits(hdul, dq_bits, label):
 
 
 def _read_asdf(path, gain, dq_bits, refpix, bunit):
-    from ..products import conventions as cv
-
     try:
         import roman_datamodels.datamodels as rdm
     except ImportError:
@@ -141,7 +138,7 @@ def _read_asdf(path, gain, dq_bits, refpix, bunit):
         units = cv.parse_units(bunit if bunit is not None else "DN", label)
         scale, units_text = cv.charge_scale(units, gain, None, label)
         data = data * scale
-        bits = cv.parse_dq_bits(dq_bits, mission="roman") & ~cv.REFERENCE_PIXEL
+        bits = cv.parse_dq_bits(dq_bits, missions.roman_mission().dq_flags) & ~cv.REFERENCE_PIXEL
         mask = np.zeros(data.shape, dtype=bool)
         for name in ("pixeldq", "groupdq", "dq"):
             if name in dm and dm[name] is not None:
@@ -162,4 +159,4 @@ def _finish(path, label, data, mask, region, inside, units_text, meta):
         outside[region] |= inside
     mask |= outside
     data = np.where(mask, np.nan, data)
-    return Frames(path, label, _as4d(data), _as4d(mask), units_text, meta)
+    return ChargeFrames(path, label, _as4d(data), _as4d(mask), units_text, meta)

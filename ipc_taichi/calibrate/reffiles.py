@@ -17,10 +17,12 @@ A file whose kind is not one of these is refused in one line.
 """
 
 import numpy as np
+from astropy.io import fits
 
 from ..errors import IPCInputError
 from ..geometry import Geometry
 from ..laws import constant
+from ..products.missions import is_asdf
 
 __all__ = ["read_reference", "invert_kernel", "law_from_forward_kernel"]
 
@@ -64,16 +66,12 @@ def read_reference(path):
         One line naming the file: not readable, or not an IPC reference of a
         known kind.
     """
-    from ..products.roman import is_asdf
-
     if is_asdf(path):
         return _roman(path)
     return _jwst(path)
 
 
 def _jwst(path):
-    from astropy.io import fits
-
     try:
         hdul = fits.open(path, memmap=False)
     except OSError as exc:

@@ -48,7 +48,7 @@ from .gain import read_frame, read_gain
 from .options import ProductOptions, resolve_model
 from .provenance import Provenance
 
-__all__ = ["process_fits"]
+__all__ = ["process_fits", "science_region_of"]
 
 
 def _check_paths(input_path, output_path, operation, options):
@@ -110,20 +110,20 @@ def _coadds(hdul, index, options):
     return 1
 
 
-def _science_region(path, hdul, index, flags, shape2d, options, mission, label):
+def science_region_of(path, hdul, index, flags, shape2d, refpix, mission, label):
     """The science region inside the reference pixels: ``--refpix`` if given,
     else the REFERENCE_PIXEL flags of the first frame, else the observatory's
-    convention, else none."""
+    convention, else none. ``flags``: the indices of the bit-flag HDUs."""
     reference = None
-    if options.refpix is None and flags:
+    if refpix is None and flags:
         source = min(flags, key=lambda k: hdul[k].header["NAXIS"])
         first = np.asarray(read_array(path, hdul, source)).reshape((-1,) + shape2d)[0]
         reference = (first.astype(np.int64) & cv.REFERENCE_PIXEL) != 0
-    if options.refpix is None and (reference is None or not reference.any()):
+    if refpix is None and (reference is None or not reference.any()):
         reference = missions.reference_mask(mission, hdul[0].header, hdul[index].header,
                                              shape2d)
     try:
-        return cv.science_region(shape2d, options.refpix, reference)
+        return cv.science_region(shape2d, refpix, reference)
     except IPCInputError as exc:
         raise IPCInputError(f"{label}: {exc}") from None
 
@@ -172,8 +172,8 @@ def _plan(input_path, hdul, operation, model, options):
             units, gain, exptime, label,
             time_source="a SAMPTIME, EFFINTTM or EXPTIME keyword", coadds=coadds)
         flags = flag_hdus(hdul, index, shape, input_path)
-        region, inside = _science_region(input_path, hdul, index, flags, shape2d, options,
-                                         mission, label)
+        region, inside = science_region_of(input_path, hdul, index, flags, shape2d,
+                                           options.refpix, mission, label)
         inner, edge_reason = cv.choose_edge(model, region, shape2d, mission.detector_product,
                                             options.edge_chosen)
         ped = None

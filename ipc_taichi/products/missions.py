@@ -112,7 +112,7 @@ def _flag_table(mission):
         pixel.__members__ if hasattr(pixel, "__members__") else pixel).items()}
 
 
-def _dq_def(hdul):
+def dq_def(hdul):
     """Name -> bit from a ``DQ_DEF`` table (columns NAME and VALUE), or {}."""
     for h in hdul:
         if (h.name or "").upper() != "DQ_DEF" or h.data is None:
@@ -146,7 +146,7 @@ def recognise(primary, science=None, hdul=None):
         name, flags = "Roman", _flag_table("Roman")
     else:
         name, flags = telescope, dict(JWST_DQ_FLAGS)
-    flags.update(_dq_def(hdul) if hdul is not None else {})
+    flags.update(dq_def(hdul) if hdul is not None else {})
     return Mission(name, instrument, name in ("JWST", "HST", "Roman"), flags)
 
 
