@@ -38,7 +38,7 @@ from . import runtime
 from ._device import (DEVICE_KINDS, HostCopies, check_torch_device, from_torch, kind_of,
                       pinned_empty, pinned_for_call, to_torch, torch_dtype)
 from ._kernels import (FAN_IN, TREE_LEVELS, KernelConfig, get_frame_kernels,
-                       get_step_kernel, partials_count)
+                       get_step_kernel, kernel_law_kind, partials_count)
 from .errors import IPCInputError
 
 # rows per task of the CPU sweep: a strip re-evaluates the dy-row pairs above
@@ -407,7 +407,7 @@ class _Run:
         self.info = info
         layout = layout or default_layout(info.arch)
         offsets = tuple(u for u, _ in model.geometry.half_stencil())
-        self.configs = {m: KernelConfig(offsets=offsets, law_kind=model.law.kind,
+        self.configs = {m: KernelConfig(offsets=offsets, law_kind=kernel_law_kind(model.law),
                                         edge=model.edge, masked=m, precision=info.precision,
                                         layout=layout) for m in (False, True)}
         if frames.on_device:

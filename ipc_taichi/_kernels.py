@@ -78,7 +78,7 @@ from dataclasses import dataclass
 
 from . import runtime
 
-__all__ = ["KernelConfig", "get_step_kernel", "get_frame_kernels", "make_alpha", "make_exp",
+__all__ = ["KernelConfig", "kernel_law_kind", "alpha_sources", "get_step_kernel", "get_frame_kernels", "make_alpha", "make_exp",
            "LAYOUTS", "partials_count", "FAN_IN", "TREE_LEVELS", "MAX_FINITE"]
 
 LAYOUTS = ("sweep", "pixel")
@@ -91,7 +91,7 @@ MAX_FINITE = {"f64": 1.7976931348623157e308, "f32": 3.4028234663852886e38}
 @dataclass(frozen=True)
 class KernelConfig:
     offsets: tuple  # half-stencil offsets ((dy, dx), ...), dy > 0 or (dy == 0 and dx > 0)
-    law_kind: str  # "parametric" | "table"
+    law_kind: str  # "parametric" | "table" | "constant" (see kernel_law_kind)
     edge: str  # "zero" | "isolated"
     masked: bool
     precision: str  # "f64" | "f32"
@@ -122,6 +122,17 @@ def partials_count(layout, height, width, strip):
     (unpadded) writes: one per strip (sweep) or per column run (pixel)."""
     strips = -(-height // strip)
     return strips if layout == "sweep" else strips * width
+
+
+def kernel_law_kind(law):
+    """The kernel's law kind for ``law``: ``"constant"`` for a parametric law
+    whose amplitudes are both zero (alpha is its floor whatever the signals:
+    the kernel evaluates nothing, and its results are bit-identical to the
+    general kernel's, where ``0 * exp(.) + 0 * exp(.) + floor`` is exactly the
+    floor), else the law's own kind (``"parametric"``, ``"table"``)."""
+    if law.kind == "parametric" and law.amp_diff == 0 and law.amp_level == 0:
+        return "constant"
+    return law.kind
 
 
 def make_exp(real_is_f64):
@@ -180,19 +191,23 @@ def make_alpha(law_kind, precision, fast_exp=True):
 
     ``p`` holds :meth:`ParametricLaw.kernel_params` (amplitudes, reciprocal
     scales, floor) or the table's grid for a :class:`TabulatedLaw`
-    (``table``). ``fast_exp`` uses the inlined :func:`make_exp` (the CPU's
+    (``table``). Law kind ``"constant"`` (see :func:`kernel_law_kind`) reads
+    the floor alone: no exponential. ``fast_exp`` uses the inlined :func:`make_exp` (the CPU's
     scalar code gains 1.7x); otherwise the arch's own ``exp`` (CUDA's is fast).
     """
     import taichi as ti
 
     real = ti.f64 if precision == "f64" else ti.f32
     table_law = law_kind == "table"
+    constant_law = law_kind == "constant"
     exp = make_exp(precision == "f64") if fast_exp else ti.exp
 
     @ti.func
     def alpha(s, n, p: ti.template(), table: ti.template()):
         a = ti.cast(0.0, real)
-        if ti.static(table_law):
+        if ti.static(constant_law):
+            a = p[4]  # the floor: amplitudes are zero, so the formula's value exactly
+        elif ti.static(table_law):
             last = p[2]
             u = ti.min(ti.max((s - p[0]) * p[1], 0.0), last)
             v = ti.min(ti.max((n - p[0]) * p[1], 0.0), last)
@@ -272,9 +287,33 @@ def get_reduce_kernel(precision):
     return reduce_partials
 
 
+def alpha_sources(config):
+    """Where each half-stencil offset's second alpha (``a_minus``, the pair
+    with the neighbour at ``p - u``) comes from, per offset (static):
+
+    - ``"row"``: the sweep's registers, carried along the row (``dy == 0``);
+    - ``"ring"``: the sweep's ring buffer, written ``dy`` rows earlier;
+    - ``"column"``: the pixel layout's registers, carried down the column (``dx == 0``);
+    - ``"fresh"``: evaluated again (the pixel layout's other offsets, and every
+      offset of a constant law, whose alpha is one number: nothing to carry).
+    """
+    if config.law_kind == "constant":
+        return ("fresh",) * len(config.offsets)
+    if config.layout == "sweep":
+        return tuple("row" if dy == 0 else "ring" for dy, _ in config.offsets)
+    return tuple("column" if dx == 0 else "fresh" for _, dx in config.offsets)
+
+
 @functools.lru_cache(maxsize=None)
 def get_step_kernel(config):
-    """Build (once per config) the Taichi kernel for one coupling step."""
+    """Build (once per config) the Taichi kernel for one coupling step.
+
+    Both layouts are built from the same device functions: ``pair`` (one
+    pair's alpha, gated by ``ok``), ``pixel_flow`` (the coupling term of one
+    pixel, each offset's second alpha taken from where :func:`alpha_sources`
+    says) and ``emit`` (the new value written, the stopping-rule maxima
+    updated); the layouts differ only in their loops and in what they carry.
+    """
     import taichi as ti
 
     if config.layout not in LAYOUTS:
@@ -286,8 +325,10 @@ def get_step_kernel(config):
     uses_ok = config.uses_ok
     vertical = config.vertical
     depth = config.ring_depth
-    sweep = config.layout == "sweep"
-    # static bookkeeping for the sweep, worked out here in plain Python
+    sources = alpha_sources(config)
+    # static bookkeeping of the carried alphas, worked out here in plain Python
+    carries_row = "row" in sources
+    rings = "ring" in sources
     carry_at = tuple(sum(ddx for ddy, ddx in offsets[:k] if ddy == 0) for k in range(n_off))
     n_carry = max(1, sum(dx for dy, dx in offsets if dy == 0))
     ring_index = tuple(vertical.index(k) if k in vertical else -1 for k in range(n_off))
@@ -295,11 +336,11 @@ def get_step_kernel(config):
     left_extra = tuple(tuple(range(-offsets[k][1], 0)) for k in vertical)
     right_extra = tuple(max(0, -offsets[k][1]) for k in vertical)
     prologue_lo = tuple(min(0, -offsets[k][1]) for k in vertical)
-    # the pixel layout carries the alphas of the vertical pairs (dy, 0) down its column
     vcarry_at = tuple(sum(ddy for ddy, ddx in offsets[:k] if ddx == 0) for k in range(n_off))
     n_vcarry = max(1, sum(dy for dy, dx in offsets if dx == 0))
+    carry_size = n_carry if config.layout == "sweep" else n_vcarry
 
-    alpha = make_alpha(config.law_kind, config.precision, fast_exp=sweep)
+    alpha = make_alpha(config.law_kind, config.precision, fast_exp=config.layout == "sweep")
     shrink, passes = make_tree_reduction()
 
     @ti.func
@@ -323,6 +364,45 @@ def get_step_kernel(config):
         return (flow + a_plus * (wm * src[y + dy, x + dx] - wp * sv)
                 + a_minus * (wp * src[y - dy, x - dx] - wm * sv))
 
+    @ti.func
+    def pixel_flow(src: ti.template(), ok: ti.template(), p: ti.template(),
+                   w: ti.template(), table: ti.template(), ring: ti.template(), s, i, y, x,
+                   sv, carry: ti.template()):
+        """The coupling term at padded (y, x) (row ``i`` of the frame); the
+        alphas it computes are carried for the pixels that reuse them."""
+        flow = ti.cast(0.0, real)
+        for k in ti.static(range(n_off)):
+            dy, dx = ti.static(offsets[k])
+            a_plus = pair(src, ok, p, table, y, x, dy, dx)
+            a_minus = ti.cast(0.0, real)
+            if ti.static(sources[k] == "row"):
+                at = ti.static(carry_at[k])
+                a_minus = carry[at]
+                for m in ti.static(range(dx - 1)):
+                    carry[at + m] = carry[at + m + 1]
+                carry[at + dx - 1] = a_plus
+            elif ti.static(sources[k] == "ring"):
+                kv = ti.static(ring_index[k])
+                a_minus = ring[s, kv, (i - dy + r) % depth, x - dx]
+                ring[s, kv, (i + r) % depth, x] = a_plus
+            elif ti.static(sources[k] == "column"):
+                at = ti.static(vcarry_at[k])
+                a_minus = carry[at]
+                for m in ti.static(range(dy - 1)):
+                    carry[at + m] = carry[at + m + 1]
+                carry[at + dy - 1] = a_plus
+            else:
+                a_minus = pair(src, ok, p, table, y - dy, x - dx, dy, dx)
+            flow = pair_flow(flow, src, w, y, x, sv, k, a_plus, a_minus)
+        return flow
+
+    @ti.func
+    def emit(base: ti.template(), dst: ti.template(), sign, i, j, flow):
+        """Write ``base + sign * flow`` at frame pixel (i, j); returns it."""
+        v = base[i, j] + sign * flow
+        dst[i + r, j + r] = v
+        return v
+
     # the two layouts take the same arguments (the pixel layout ignores ring)
     frame = ti.types.ndarray(dtype=real, ndim=2)
     vector = ti.types.ndarray(dtype=real, ndim=1)
@@ -345,53 +425,43 @@ def get_step_kernel(config):
                 i1 = ti.min(h, i0 + strip)
                 dmax = ti.cast(0.0, real)
                 smax = ti.cast(0.0, real)
-                # prologue: pairs that start in the dy rows above the strip
-                for kv in ti.static(range(len(vertical))):
-                    dy, dx = ti.static(offsets[vertical[kv]])
-                    for row in range(i0 - dy, i0):
-                        slot = (row + r) % depth
-                        for c in range(prologue_lo[kv], wd + right_extra[kv]):
-                            ring[s, kv, slot, c + r] = pair(src, ok, p, table, row + r, c + r,
-                                                            dy, dx)
-                for i in range(i0, i1):
-                    y = i + r
-                    # pairs starting beyond the row's ends that later rows read back
+                if ti.static(rings):
+                    # prologue: pairs that start in the dy rows above the strip
                     for kv in ti.static(range(len(vertical))):
                         dy, dx = ti.static(offsets[vertical[kv]])
-                        slot = (i + r) % depth
-                        for c in ti.static(left_extra[kv]):
-                            ring[s, kv, slot, c + r] = pair(src, ok, p, table, y, c + r, dy, dx)
-                        for c in range(wd, wd + right_extra[kv]):
-                            ring[s, kv, slot, c + r] = pair(src, ok, p, table, y, c + r, dy, dx)
+                        for row in range(i0 - dy, i0):
+                            slot = (row + r) % depth
+                            for c in range(prologue_lo[kv], wd + right_extra[kv]):
+                                ring[s, kv, slot, c + r] = pair(src, ok, p, table, row + r,
+                                                                c + r, dy, dx)
+                for i in range(i0, i1):
+                    y = i + r
+                    if ti.static(rings):
+                        # pairs starting beyond the row's ends that later rows read back
+                        for kv in ti.static(range(len(vertical))):
+                            dy, dx = ti.static(offsets[vertical[kv]])
+                            slot = (i + r) % depth
+                            for c in ti.static(left_extra[kv]):
+                                ring[s, kv, slot, c + r] = pair(src, ok, p, table, y, c + r,
+                                                                dy, dx)
+                            for c in range(wd, wd + right_extra[kv]):
+                                ring[s, kv, slot, c + r] = pair(src, ok, p, table, y, c + r,
+                                                                dy, dx)
                     # horizontal pairs to the left of column 0, carried in registers
-                    carry = ti.Vector([0.0] * n_carry, dt=real)
-                    for k in ti.static(range(n_off)):
-                        dy, dx = ti.static(offsets[k])
-                        if ti.static(dy == 0):
-                            at = ti.static(carry_at[k])
-                            for m in ti.static(range(dx)):
-                                carry[at + m] = pair(src, ok, p, table, y, r - dx + m, 0, dx)
+                    carry = ti.Vector([0.0] * carry_size, dt=real)
+                    if ti.static(carries_row):
+                        for k in ti.static(range(n_off)):
+                            dy, dx = ti.static(offsets[k])
+                            if ti.static(dy == 0):
+                                at = ti.static(carry_at[k])
+                                for m in ti.static(range(dx)):
+                                    carry[at + m] = pair(src, ok, p, table, y, r - dx + m, 0,
+                                                         dx)
                     for j in range(wd):
                         x = j + r
                         sv = src[y, x]
-                        flow = ti.cast(0.0, real)
-                        for k in ti.static(range(n_off)):
-                            dy, dx = ti.static(offsets[k])
-                            a_plus = pair(src, ok, p, table, y, x, dy, dx)
-                            a_minus = ti.cast(0.0, real)
-                            if ti.static(dy == 0):
-                                at = ti.static(carry_at[k])
-                                a_minus = carry[at]
-                                for m in ti.static(range(dx - 1)):
-                                    carry[at + m] = carry[at + m + 1]
-                                carry[at + dx - 1] = a_plus
-                            else:
-                                kv = ti.static(ring_index[k])
-                                a_minus = ring[s, kv, (i - dy + r) % depth, x - dx]
-                                ring[s, kv, (i + r) % depth, x] = a_plus
-                            flow = pair_flow(flow, src, w, y, x, sv, k, a_plus, a_minus)
-                        v = base[i, j] + sign * flow
-                        dst[y, x] = v
+                        flow = pixel_flow(src, ok, p, w, table, ring, s, i, y, x, sv, carry)
+                        v = emit(base, dst, sign, i, j, flow)
                         dmax = ti.max(dmax, ti.abs(v - sv))
                         smax = ti.max(smax, ti.abs(v))
                 part[s, 0] = dmax
@@ -416,39 +486,25 @@ def get_step_kernel(config):
             dmax = ti.cast(0.0, real)
             smax = ti.cast(0.0, real)
             # vertical pairs (dy, 0) that end in the run's first dy rows start above it
-            carry = ti.Vector([0.0] * n_vcarry, dt=real)
+            carry = ti.Vector([0.0] * carry_size, dt=real)
             for k in ti.static(range(n_off)):
                 dy, dx = ti.static(offsets[k])
-                if ti.static(dx == 0):
+                if ti.static(sources[k] == "column"):
                     at = ti.static(vcarry_at[k])
                     for m in ti.static(range(dy)):
                         carry[at + m] = pair(src, ok, p, table, i0 + r - dy + m, x, dy, 0)
             for i in range(i0, i1):
                 y = i + r
                 sv = src[y, x]
-                flow = ti.cast(0.0, real)
-                for k in ti.static(range(n_off)):
-                    dy, dx = ti.static(offsets[k])
-                    a_plus = pair(src, ok, p, table, y, x, dy, dx)
-                    a_minus = ti.cast(0.0, real)
-                    if ti.static(dx == 0):
-                        at = ti.static(vcarry_at[k])
-                        a_minus = carry[at]
-                        for m in ti.static(range(dy - 1)):
-                            carry[at + m] = carry[at + m + 1]
-                        carry[at + dy - 1] = a_plus
-                    else:
-                        a_minus = pair(src, ok, p, table, y - dy, x - dx, dy, dx)
-                    flow = pair_flow(flow, src, w, y, x, sv, k, a_plus, a_minus)
-                v = base[i, j] + sign * flow
-                dst[y, x] = v
+                flow = pixel_flow(src, ok, p, w, table, ring, 0, i, y, x, sv, carry)
+                v = emit(base, dst, sign, i, j, flow)
                 dmax = ti.max(dmax, ti.abs(v - sv))
                 smax = ti.max(smax, ti.abs(v))
             part[b * wd + j, 0] = dmax
             part[b * wd + j, 1] = smax
         passes(part, n0, n1, n2, n3, n4, n5)
 
-    return step_sweep if sweep else step_pixel
+    return step_sweep if config.layout == "sweep" else step_pixel
 
 
 @dataclass(frozen=True)
