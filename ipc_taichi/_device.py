@@ -22,6 +22,7 @@ array they were given, on the device it was on:
 Nothing here imports PyTorch, CuPy or JAX unless such an array is given.
 """
 
+import contextlib
 import ctypes
 import mmap
 import sys
@@ -34,7 +35,8 @@ from .errors import IPCInputError
 
 __all__ = ["kind_of", "to_torch", "from_torch", "torch_dtype", "check_torch_device",
            "ndarray_pointer", "CudaDriver", "cuda_driver", "pinned_for_call", "pinned_empty",
-           "PIN_MIN_BYTES", "DEVICE_KINDS", "torch_stream_order", "shares_memory"]
+           "PIN_MIN_BYTES", "DEVICE_KINDS", "torch_stream_order", "shares_memory",
+           "pageable_copies"]
 
 DEVICE_KINDS = ("torch", "cupy", "jax", "dlpack")
 
@@ -368,6 +370,21 @@ def _pages(array):
     return start, end - start
 
 
+_pinning = [True]  # switched off by pageable_copies()
+
+
+@contextlib.contextmanager
+def pageable_copies():
+    """Within this context no host array is page-locked by the engine (its
+    copies run from pageable memory): how the benchmark times what locking
+    saves. Memory already locked (:func:`pinned_empty`) stays locked."""
+    _pinning.append(False)
+    try:
+        yield
+    finally:
+        _pinning.pop()
+
+
 class pinned_for_call:
     """Context manager: page-lock host arrays (at least :data:`PIN_MIN_BYTES`)
     for the duration of a CUDA call, so that the engine's copies run at DMA
@@ -382,7 +399,7 @@ class pinned_for_call:
 
     def __init__(self, arrays, arch, enabled=True, driver=None):
         self.arrays = [a for a in arrays if a is not None]
-        self.active = enabled and arch == "cuda"
+        self.active = enabled and arch == "cuda" and _pinning[-1]
         self.driver = driver
         self.locked = []
 

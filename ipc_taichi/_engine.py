@@ -57,7 +57,7 @@ FORCE_DEVICE_BUFFERS = False
 
 __all__ = ["as_stack", "Frames", "Workspace", "run_couple", "run_decouple", "interior",
            "default_layout", "start", "STRIP_ROWS", "workspace_cache_info", "clear_workspaces",
-           "cached_workspaces"]
+           "cached_workspaces", "as_result", "frame_copies", "ENGINE_LOCK"]
 
 
 def start(arch, precision):
@@ -246,6 +246,19 @@ def clear_workspaces():
 def workspace_cache_info():
     """``{key: bytes}`` of the cached workspaces (tests, benchmark)."""
     return {k: ws.nbytes for k, ws in _cache().items()}
+
+
+def frame_copies():
+    """The benchmark's hook for timing the host<->device copies alone:
+    ``(upload(host), download(host))`` between a host frame and the device
+    frame of the most recently used workspace, or ``None`` when that
+    workspace keeps no device frame (the CPU path)."""
+    with ENGINE_LOCK:
+        ws = next(reversed(_workspaces.values()), None)
+        if ws is None or not ws.device_buffers:
+            return None
+        return (lambda host: ws.copies.upload(ws.io, host),
+                lambda host: ws.copies.download(host, ws.io))
 
 
 runtime.on_reset(clear_workspaces)
