@@ -33,11 +33,10 @@ import threading
 
 import numpy as np
 
-from . import runtime
+from . import _kernels, runtime
 from ._device import (HostCopies, check_torch_device, kind_of, pinned_empty, pinned_for_call,
                       shares_memory, to_torch, torch_dtype, torch_stream_order)
 from ._inputs import Frames, as_result, as_stack
-from . import _kernels
 from ._kernels import (KernelConfig, get_frame_kernels, get_step_kernel, kernel_law_kind,
                        partials_count)
 from .errors import IPCInputError
@@ -344,7 +343,7 @@ class _Run:
                 raise IPCInputError(f"out: expected a contiguous {dt} array of shape "
                                     f"{shape[1:] if frames.was_2d else shape} on "
                                     f"{frames.data.device}")
-            self.aliased = shares_memory(out3, frames.data)
+            self.aliased = self._check_alias(out3)
             return out3
         if out is None:
             return np.empty(shape, dtype=self.info.dtype)
@@ -354,8 +353,24 @@ class _Run:
                 and out3.flags.writeable):
             raise IPCInputError(f"out: expected a writeable C-contiguous {self.info.dtype} "
                                 f"NumPy array of shape {shape[1:] if frames.was_2d else shape}")
-        self.aliased = shares_memory(out3, frames.data)
+        self.aliased = self._check_alias(out3)
         return out3
+
+    def _check_alias(self, out3):
+        """Whether ``out`` is the input itself (then each frame is kept before
+        it is overwritten); ``out`` overlapping the input otherwise is refused."""
+        data = self.frames.data
+        if not shares_memory(out3, data):
+            return False
+        if isinstance(data, np.ndarray):
+            same = (out3.__array_interface__["data"][0] == data.__array_interface__["data"][0]
+                    and out3.strides == data.strides)
+        else:
+            same = out3.data_ptr() == data.data_ptr() and out3.stride() == data.stride()
+        if not same:
+            raise IPCInputError("out: overlaps the input without being it; pass the input "
+                                "itself, or memory of its own")
+        return True
 
     def pinned(self, out):
         """Page-lock the NumPy input and output for this call (CUDA only)."""

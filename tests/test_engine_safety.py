@@ -179,6 +179,16 @@ def test_out_given_as_the_input_keeps_bad_pixels(cpu, bad_frames, kind, function
     assert _same(back, expected[1])
 
 
+def test_out_overlapping_the_input_is_refused(cpu, bad_frames):
+    truth, _ = bad_frames
+    big = np.zeros((3,) + truth.shape[1:])
+    big[:2] = truth
+    before = big.copy()
+    with pytest.raises(ipc_taichi.IPCInputError, match="overlaps the input"):
+        ipc_taichi.decouple(big[:2], out=big[1:3])
+    assert np.array_equal(big, before, equal_nan=True)
+
+
 def test_uint16_tensors_are_taken_like_uint16_arrays(cpu, rng):
     counts = rng.integers(0, 60000, (2, 21, 17)).astype(np.uint16)
     expected = ipc_taichi.decouple(counts)
