@@ -157,3 +157,9 @@ def test_row_beside_the_jwst_ipc_step(cpu):
     assert 0 < ours["max_error"] < step["max_error"] / 5
     text = render_pipeline(result)
     assert "jwst ipc step" in text and f"{result['ratio']:.2f}x" in text
+
+
+def test_cli_refuses_a_tiny_jwst_ramp(cli, tmp_path):
+    result = cli("bench", "--jwst-size", "8", "--output", tmp_path)
+    assert result.returncode != 0 and "--jwst-size" in result.stderr
+    assert list(tmp_path.iterdir()) == []
