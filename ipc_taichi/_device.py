@@ -24,7 +24,6 @@ Nothing here imports PyTorch, CuPy or JAX unless such an array is given.
 
 import contextlib
 import ctypes
-import mmap
 import sys
 import threading
 import weakref
@@ -39,8 +38,6 @@ __all__ = ["kind_of", "to_torch", "from_torch", "torch_dtype", "check_torch_devi
            "pageable_copies"]
 
 DEVICE_KINDS = ("torch", "cupy", "jax", "dlpack")
-
-PAGE_BYTES = mmap.PAGESIZE
 
 PIN_MIN_BYTES = 4 << 20
 """Host arrays at least this large are page-locked for the duration of a CUDA
@@ -359,15 +356,15 @@ def _contiguous(host):
     return host
 
 
-def _pages(array):
-    """``(address, nbytes)`` of the whole pages that hold ``array``'s elements
-    (a view: its own span, not its parent buffer's)."""
+def _span(array):
+    """``(address, nbytes)`` of the memory from ``array``'s first to its last
+    element (a view: its own span, not its parent buffer's). Not rounded to
+    pages: the driver locks whole pages itself, and a rounded span could
+    overlap a neighbouring array's registration."""
     from numpy.lib.array_utils import byte_bounds
 
     low, high = byte_bounds(array)
-    start = low - low % PAGE_BYTES
-    end = high + (-high) % PAGE_BYTES
-    return start, end - start
+    return low, high - low
 
 
 _pinning = [True]  # switched off by pageable_copies()
@@ -391,7 +388,7 @@ class pinned_for_call:
     speed; memory that is already locked (e.g. from :func:`pinned_empty`) is
     left as it is. A no-op off CUDA or with ``enabled=False``.
 
-    Each array's own pages are locked (a frame that is a view of a larger
+    Each array's own span is locked (a frame that is a view of a larger
     stack locks the frame, not the stack); a span overlapping one locked
     already (by this call or earlier) is refused by the driver and left
     pageable. An interruption (Ctrl-C) while locking unlocks what was locked.
@@ -410,7 +407,7 @@ class pinned_for_call:
         self.driver = driver
         try:
             for array in self.arrays:
-                address, nbytes = _pages(array)
+                address, nbytes = _span(array)
                 if nbytes < PIN_MIN_BYTES:
                     continue
                 try:

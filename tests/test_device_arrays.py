@@ -300,7 +300,7 @@ def test_pinning_locks_once_and_unlocks_what_it_locked():
     user = _device.pinned_empty((_device.PIN_MIN_BYTES // 8,), arch="cuda", driver=driver)
     user_address = user.ctypes.data
     assert driver.lib.locked == {user_address: user.nbytes}
-    big_pages = _device._pages(big)[0]
+    big_pages = big.ctypes.data
     with _device.pinned_for_call([big, big[10:], small, user], "cuda", driver=driver) as pins:
         assert set(driver.lib.locked) == {big_pages, user_address}
         assert pins.locked == [big_pages]  # the view shares big's lock
@@ -321,18 +321,19 @@ def test_pinning_locks_once_and_unlocks_what_it_locked():
         assert pins.locked == []  # copied from pageable memory instead, no error
 
 
-def test_pinning_locks_a_views_pages_not_its_parent_stack():
+def test_pinning_locks_a_views_span_not_its_parent_stack():
     driver = _device.CudaDriver(_FakeLib())
-    stack = np.zeros((8, 512, 1024 + 3))  # 8 frames of 4.2 MB, rows not page-aligned
+    stack = np.zeros((8, 512, 1024 + 3))  # 8 frames of 4.2 MB
     frame = stack[5]
     with _device.pinned_for_call([frame], "cuda", driver=driver) as pins:
-        (address, nbytes), = driver.lib.locked.items()
-        assert pins.locked == [address]
-        page = _device.PAGE_BYTES
-        assert address <= frame.ctypes.data < address + page
-        assert frame.nbytes <= nbytes < frame.nbytes + 2 * page  # not the 34 MB stack
-        assert address % page == 0 and nbytes % page == 0
+        assert driver.lib.locked == {frame.ctypes.data: frame.nbytes}  # not the 34 MB stack
+        assert pins.locked == [frame.ctypes.data]
     assert driver.lib.locked == {}
+    column = stack[:, :, 7]  # strided: from its first to its last element
+    with _device.pinned_for_call([column], "cuda", driver=driver):
+        (address, nbytes), = driver.lib.locked.items()
+        assert address == column.ctypes.data
+        assert nbytes == (column.size - 1) * 8 * (1024 + 3) + 8
 
 
 def test_pinning_interrupted_unlocks_what_it_locked():
@@ -351,7 +352,7 @@ def test_pinning_interrupted_unlocks_what_it_locked():
         with _device.pinned_for_call([first, second], "cuda", driver=driver):
             pass  # pragma: no cover (never entered)
     assert lib.locked == {}
-    assert ("unregister", _device._pages(first)[0]) in lib.calls
+    assert ("unregister", first.ctypes.data) in lib.calls
 
 
 def test_ndarray_pointer_addresses_taichi_memory(cpu):
