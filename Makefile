@@ -6,7 +6,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed-stamp
 export IPC_TAICHI_ARCH ?= auto
 
-.PHONY: install test test-gpu demo bench figures lock clean
+.PHONY: install install-gpu test test-gpu demo bench figures lock clean
 
 $(STAMP): pyproject.toml requirements.lock
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
@@ -21,15 +21,39 @@ install: $(STAMP)
 test: install
 	IPC_TAICHI_ARCH=cpu IPC_TAICHI_PRECISION=f64 $(BIN)/python -m pytest -q -m "not gpu"
 
-test-gpu: install
-	IPC_TAICHI_ARCH=cuda $(BIN)/python -m pytest -q -m gpu
+# A CUDA machine: Python 3.12 and a CUDA build of PyTorch, in build/venv-gpu, without the
+# CPU lock (it pins a CPU torch for Python 3.11). --system-site-packages keeps a
+# torch/cupy the machine already has. Offline: see docs/performance.md.
+PY_GPU ?= python3.12
+GPU_VENV := build/venv-gpu
+GPU_STAMP := $(GPU_VENV)/.installed-stamp
+HAVE_CUDA := $(shell ldconfig -p 2>/dev/null | grep -q 'libcuda\.so\.1' && echo yes)
+
+$(GPU_STAMP): pyproject.toml
+	test -x $(GPU_VENV)/bin/python || $(PY_GPU) -m venv --system-site-packages $(GPU_VENV)
+	$(GPU_VENV)/bin/python -m pip install -q --upgrade "pip>=24"
+	$(GPU_VENV)/bin/python -m pip install -q -e ".[gpu]"
+	touch $@
+
+install-gpu: $(GPU_STAMP)
+
+# Only tests/test_gpu.py: the other test files need the CPU extras (galsim, jwst, ...).
+test-gpu: install-gpu
+	IPC_TAICHI_ARCH=cuda $(GPU_VENV)/bin/python -m pytest -q -p no:cacheprovider -rs -m gpu \
+	  -W "ignore::UserWarning:cupy" tests/test_gpu.py
 
 demo: install
 	$(BIN)/ipc-taichi demo
 
 # Speed benchmark: writes bench/results.json and bench/RESULTS.md (with the machine).
+# On a CUDA machine from build/venv-gpu (CPU and CUDA rows), elsewhere from .venv.
+ifeq ($(HAVE_CUDA),yes)
+bench: install-gpu
+	$(GPU_VENV)/bin/ipc-taichi bench
+else
 bench: install
 	$(BIN)/ipc-taichi bench
+endif
 
 # Every figure of the paper that can be made, and figures/RESULTS.md; rebuilds only what changed.
 figures: install
@@ -42,4 +66,4 @@ lock:
 	  /tmp/ipc-taichi-lock/bin/pip freeze --all | grep -v "^ipc.taichi\|^pip=" ; } > requirements.lock
 
 clean:
-	rm -rf $(VENV) build *.egg-info .pytest_cache .hypothesis
+	rm -rf $(VENV) $(GPU_VENV) build *.egg-info .pytest_cache .hypothesis

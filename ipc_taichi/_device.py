@@ -22,6 +22,7 @@ array they were given, on the device it was on:
 Nothing here imports PyTorch, CuPy or JAX unless such an array is given.
 """
 
+import contextlib
 import ctypes
 import sys
 import threading
@@ -33,7 +34,8 @@ from .errors import IPCInputError
 
 __all__ = ["kind_of", "to_torch", "from_torch", "torch_dtype", "check_torch_device",
            "ndarray_pointer", "CudaDriver", "cuda_driver", "pinned_for_call", "pinned_empty",
-           "PIN_MIN_BYTES", "DEVICE_KINDS"]
+           "PIN_MIN_BYTES", "DEVICE_KINDS", "torch_stream_order", "shares_memory",
+           "pageable_copies"]
 
 DEVICE_KINDS = ("torch", "cupy", "jax", "dlpack")
 
@@ -131,6 +133,74 @@ def check_torch_device(tensor, arch, what):
             raise IPCInputError(f"{what}: the array is on {dev}; Taichi uses the first visible "
                                 "GPU (cuda:0): select the GPU with CUDA_VISIBLE_DEVICES "
                                 "(see ipc_taichi.gpus)")
+
+
+def shares_memory(a, b):
+    """Whether two arrays of the same kind (NumPy, or PyTorch tensors) may
+    share memory (``out=`` given as the input itself, or a view of it)."""
+    if isinstance(a, np.ndarray) and isinstance(b, np.ndarray):
+        return bool(np.may_share_memory(a, b))
+    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+        return False
+    return a.untyped_storage().data_ptr() == b.untyped_storage().data_ptr()
+
+
+class torch_stream_order:
+    """Context manager: order a call's GPU work with the caller's PyTorch stream.
+
+    Taichi launches its kernels, and the engine issues its driver copies, on
+    the legacy default stream; PyTorch may run the caller's work on another
+    stream (``with torch.cuda.stream(s):``), which the default stream does not
+    wait for, nor it for the default stream. Inside this context the default
+    stream first waits for the caller's stream (the input is ready), the
+    engine's own PyTorch operations run on the default stream (ordered with
+    Taichi), and on leaving the caller's stream waits for the default stream
+    (the result is ready) and the result's memory is marked as used by the
+    caller's stream (:meth:`adopt`). No host synchronisation. A no-op for CPU
+    tensors and on the default stream. (CuPy and JAX hand their arrays over
+    through DLPack, which orders the streams itself.)
+
+    Parameters
+    ----------
+    tensor : torch.Tensor or None
+        The input (its device is the one ordered); ``None``: a no-op.
+    cuda : module, optional
+        ``torch.cuda`` (tests pass a stand-in).
+    """
+
+    def __init__(self, tensor, cuda=None):
+        self.device = None if tensor is None else tensor.device
+        self.cuda = cuda
+        self.caller = self.default = self._inside = None
+
+    def __enter__(self):
+        if self.device is None or self.device.type != "cuda":
+            return self
+        if self.cuda is None:
+            import torch
+
+            self.cuda = torch.cuda
+        caller = self.cuda.current_stream(self.device)
+        default = self.cuda.default_stream(self.device)
+        if caller == default:
+            return self
+        self.caller, self.default = caller, default
+        default.wait_stream(caller)
+        self._inside = self.cuda.stream(default)
+        self._inside.__enter__()
+        return self
+
+    def adopt(self, tensor):
+        """Mark ``tensor`` (made inside the context) as used by the caller's stream."""
+        if self.caller is not None and tensor is not None:
+            tensor.record_stream(self.caller)
+
+    def __exit__(self, *exc):
+        if self._inside is not None:
+            self._inside.__exit__(*exc)
+            self.caller.wait_stream(self.default)
+            self._inside = None
+        return False
 
 
 def ndarray_pointer(nd):
@@ -286,11 +356,30 @@ def _contiguous(host):
     return host
 
 
-def _owner(array):
-    """The array that owns ``array``'s memory (following views)."""
-    while isinstance(array.base, np.ndarray):
-        array = array.base
-    return array
+def _span(array):
+    """``(address, nbytes)`` of the memory from ``array``'s first to its last
+    element (a view: its own span, not its parent buffer's). Not rounded to
+    pages: the driver locks whole pages itself, and a rounded span could
+    overlap a neighbouring array's registration."""
+    from numpy.lib.array_utils import byte_bounds
+
+    low, high = byte_bounds(array)
+    return low, high - low
+
+
+_pinning = [True]  # switched off by pageable_copies()
+
+
+@contextlib.contextmanager
+def pageable_copies():
+    """Within this context no host array is page-locked by the engine (its
+    copies run from pageable memory): how the benchmark times what locking
+    saves. Memory already locked (:func:`pinned_empty`) stays locked."""
+    _pinning.append(False)
+    try:
+        yield
+    finally:
+        _pinning.pop()
 
 
 class pinned_for_call:
@@ -299,13 +388,15 @@ class pinned_for_call:
     speed; memory that is already locked (e.g. from :func:`pinned_empty`) is
     left as it is. A no-op off CUDA or with ``enabled=False``.
 
-    Each array's whole buffer (from the start of its owner's memory) is locked:
-    CUDA locks whole pages, and two views of one buffer must not lock it twice.
+    Each array's own span is locked (a frame that is a view of a larger
+    stack locks the frame, not the stack); a span overlapping one locked
+    already (by this call or earlier) is refused by the driver and left
+    pageable. An interruption (Ctrl-C) while locking unlocks what was locked.
     """
 
     def __init__(self, arrays, arch, enabled=True, driver=None):
         self.arrays = [a for a in arrays if a is not None]
-        self.active = enabled and arch == "cuda"
+        self.active = enabled and arch == "cuda" and _pinning[-1]
         self.driver = driver
         self.locked = []
 
@@ -313,22 +404,24 @@ class pinned_for_call:
         if not self.active:
             return self
         driver = self.driver or cuda_driver()
-        seen = set()
-        for array in self.arrays:
-            owner = _owner(array)
-            address, nbytes = owner.ctypes.data, owner.nbytes
-            if nbytes < PIN_MIN_BYTES or address in seen:
-                continue
-            seen.add(address)
-            try:
-                if driver.register(address, nbytes):
-                    self.locked.append(address)
-            except RuntimeError:
-                # e.g. read-only or file-backed memory the driver will not lock:
-                # the copies of this array then run from pageable memory
-                continue
         self.driver = driver
-        self.arrays = []  # keep addresses only, not the arrays alive
+        try:
+            for array in self.arrays:
+                address, nbytes = _span(array)
+                if nbytes < PIN_MIN_BYTES:
+                    continue
+                try:
+                    if driver.register(address, nbytes):
+                        self.locked.append(address)
+                except RuntimeError:
+                    # e.g. read-only or file-backed memory the driver will not lock:
+                    # the copies of this array then run from pageable memory
+                    continue
+        except BaseException:  # KeyboardInterrupt, SystemExit: no lock outlives the call
+            self.__exit__()
+            raise
+        finally:
+            self.arrays = []  # keep addresses only, not the arrays alive
         return self
 
     def __exit__(self, *exc):

@@ -1,8 +1,8 @@
 """The engine behind :func:`ipc_taichi.couple` and :func:`ipc_taichi.decouple`.
 
-Per call: validate the input once (:func:`as_stack`: a NumPy-readable array, a
-PyTorch tensor, or a CuPy/JAX/DLPack array seen through PyTorch, see
-:mod:`ipc_taichi._device`), take the :class:`Workspace` of the frame shape from
+Per call: validate the input once (:func:`ipc_taichi._inputs.as_stack`: a
+NumPy-readable array, a PyTorch tensor, or a CuPy/JAX/DLPack array seen through
+PyTorch, see :mod:`ipc_taichi._device`), take the :class:`Workspace` of the frame shape from
 a small cache (its padded working arrays are allocated once per shape and reused
 by every frame of a stack and by later calls), and run the frames one by one:
 
@@ -29,16 +29,16 @@ them) and never per shape or per call: frame sizes are run-time arguments.
 """
 
 import collections
-import dataclasses
 import threading
 
 import numpy as np
 
-from . import runtime
-from ._device import (DEVICE_KINDS, HostCopies, check_torch_device, from_torch, kind_of,
-                      pinned_empty, pinned_for_call, to_torch, torch_dtype)
-from ._kernels import (FAN_IN, TREE_LEVELS, KernelConfig, get_frame_kernels,
-                       get_step_kernel, partials_count)
+from . import _kernels, runtime
+from ._device import (HostCopies, check_torch_device, kind_of, pinned_empty, pinned_for_call,
+                      shares_memory, to_torch, torch_dtype, torch_stream_order)
+from ._inputs import Frames, as_result, as_stack
+from ._kernels import (KernelConfig, get_frame_kernels, get_step_kernel, kernel_law_kind,
+                       partials_count)
 from .errors import IPCInputError
 
 # rows per task of the CPU sweep: a strip re-evaluates the dy-row pairs above
@@ -56,7 +56,7 @@ FORCE_DEVICE_BUFFERS = False
 
 __all__ = ["as_stack", "Frames", "Workspace", "run_couple", "run_decouple", "interior",
            "default_layout", "start", "STRIP_ROWS", "workspace_cache_info", "clear_workspaces",
-           "cached_workspaces"]
+           "cached_workspaces", "as_result", "frame_copies", "ENGINE_LOCK"]
 
 
 def start(arch, precision):
@@ -73,125 +73,6 @@ def interior(padded, reach):
     if reach == 0:
         return padded
     return padded[reach:-reach, reach:-reach]
-
-
-# --------------------------------------------------------------------------- input
-
-@dataclasses.dataclass
-class Frames:
-    """A validated input: the stack ``(n, ny, nx)`` in its own kind.
-
-    ``data`` is a NumPy array (kind ``numpy``) or a PyTorch tensor (every other
-    kind, CuPy/JAX/DLPack already wrapped); ``bad`` the untrusted-pixel mask of
-    the same kind and shape, or ``None``; ``like`` the object given (for the
-    result's kind and mask).
-    """
-
-    data: object
-    bad: object
-    was_2d: bool
-    kind: str
-    like: object
-
-    @property
-    def shape(self):
-        return tuple(self.data.shape)
-
-    @property
-    def on_device(self):
-        return self.kind in DEVICE_KINDS
-
-
-def as_stack(data, what, mask=None):
-    """Validate ``data`` (and ``mask``) as a 2-D frame or a 3-D stack; returns :class:`Frames`."""
-    kind = kind_of(data)
-    like = data
-    if kind != "numpy":
-        return _device_stack(to_torch(data, kind), kind, like, what, mask)
-    if isinstance(data, np.ma.MaskedArray):
-        own = np.ma.getmaskarray(data)
-        mask = own if mask is None else (own | _host_mask(mask))
-        data = data.data
-    try:
-        arr = np.asarray(data)
-    except Exception as exc:  # ragged lists and the like
-        raise IPCInputError(f"{what}: cannot be read as an array ({exc})") from None
-    _check_shape(arr.shape, arr.dtype.kind in "iuf", str(arr.dtype), what)
-    if mask is not None:
-        mask = _host_mask(mask)
-        if mask.dtype != bool:
-            raise IPCInputError(f"{what}: mask must be boolean (True = not trusted), got "
-                                f"dtype {mask.dtype}")
-        try:
-            mask = np.broadcast_to(mask, arr.shape)
-        except ValueError:
-            raise IPCInputError(f"{what}: mask of shape {mask.shape} does not fit data of "
-                                f"shape {arr.shape}") from None
-        if not mask.any():
-            mask = None
-    was_2d = arr.ndim == 2
-    if was_2d:
-        arr = arr[np.newaxis]
-        mask = None if mask is None else mask[np.newaxis]
-    return Frames(arr, mask, was_2d, "numpy", like)
-
-
-def _host_mask(mask):
-    if kind_of(mask) != "numpy":
-        return np.asarray(to_torch(mask, kind_of(mask)).cpu().numpy())
-    return np.asarray(mask)
-
-
-def _check_shape(shape, real, dtype, what):
-    if not real:
-        raise IPCInputError(f"{what}: dtype {dtype} is not a real number type")
-    if len(shape) not in (2, 3):
-        raise IPCInputError(f"{what}: expected a 2-D frame (ny, nx) or a 3-D stack "
-                            f"(n, ny, nx), got {len(shape)}-D shape {tuple(shape)}")
-    if int(np.prod(shape)) == 0:
-        raise IPCInputError(f"{what}: empty array of shape {tuple(shape)}")
-
-
-def _device_stack(tensor, kind, like, what, mask):
-    import torch
-
-    tensor = tensor.detach()  # the result is not differentiable
-    dt = tensor.dtype
-    real = (dt.is_floating_point or dt in (torch.int8, torch.int16, torch.int32, torch.int64,
-                                           torch.uint8)) and not dt.is_complex
-    _check_shape(tuple(tensor.shape), real, str(dt), what)
-    bad = None
-    if mask is not None:
-        mk = kind_of(mask)
-        bad = to_torch(mask, mk) if mk != "numpy" else torch.from_numpy(
-            np.ascontiguousarray(np.asarray(mask)))
-        if bad.dtype != torch.bool:
-            raise IPCInputError(f"{what}: mask must be boolean (True = not trusted), got "
-                                f"dtype {bad.dtype}")
-        try:
-            bad = torch.broadcast_to(bad.to(tensor.device), tensor.shape)
-        except RuntimeError:
-            raise IPCInputError(f"{what}: mask of shape {tuple(bad.shape)} does not fit data "
-                                f"of shape {tuple(tensor.shape)}") from None
-        if not bool(bad.any()):
-            bad = None
-    was_2d = tensor.dim() == 2
-    if was_2d:
-        tensor = tensor.unsqueeze(0)
-        bad = None if bad is None else bad.unsqueeze(0)
-    return Frames(tensor, bad, was_2d, kind, like)
-
-
-def as_result(stack, frames):
-    """The result stack shaped and typed as the input was given: a frame for a
-    2-D input, a masked array (with the input's mask) for a masked input, the
-    input's kind for a device array."""
-    result = stack[0] if frames.was_2d else stack
-    if frames.kind != "numpy":
-        return from_torch(result, frames.kind, frames.like)
-    if isinstance(frames.like, np.ma.MaskedArray):
-        result = np.ma.MaskedArray(result, mask=np.ma.getmaskarray(frames.like).copy())
-    return result
 
 
 # --------------------------------------------------------------------------- workspace
@@ -221,8 +102,10 @@ class Workspace:
             self.strip = STRIP_ROWS
         else:
             self.strip = max(MIN_RUN_ROWS, -(-ny * nx // PIXEL_THREADS))
-            # the tree reduces at most FAN_IN ** TREE_LEVELS partials
-            self.strip = max(self.strip, -(-ny * nx // FAN_IN ** TREE_LEVELS))
+            # fewer partials than the tree reduces to one row, unless the frame is
+            # wider than that (then maxima() reads the rows the tree leaves)
+            self.strip = max(self.strip,
+                             -(-ny * nx // _kernels.FAN_IN ** _kernels.TREE_LEVELS))
         self.strip = min(self.strip, ny)
         self.n_partials = partials_count(config.layout, ny, nx, self.strip)
         self._made = []
@@ -302,15 +185,15 @@ class Workspace:
             self.flag[0] = 0
 
     def maxima(self):
-        """``(max|dst - src|, max|dst|)`` of the last step: the tree's result in
-        row 0 (``pixel``), or the maximum over the strips' rows (``sweep``)."""
-        if self.layout != "sweep":
-            return tuple(self.read(self.partials, 2))
+        """``(max|dst - src|, max|dst|)`` of the last step: the maximum over the
+        rows the tree leaves (``pixel``: row 0 unless the frame is wider than
+        the tree's capacity) or over the strips' rows (``sweep``)."""
+        n = self.n_partials if self.layout == "sweep" else _kernels.tree_rows(self.n_partials)
         if self.device_buffers:
-            rows = np.empty((self.n_partials, 2), dtype=self.dtype)
+            rows = np.empty((n, 2), dtype=self.dtype)
             self.copies.download(rows, self.partials)
         else:
-            rows = self.partials
+            rows = self.partials[:n]
         d, s = rows.max(axis=0)
         return float(d), float(s)
 
@@ -321,12 +204,17 @@ class Workspace:
         return interior(padded, self.reach)
 
 
-# one cache per thread: two threads of one process never share working arrays
-_workspaces_by_thread = {}
+# Taichi has one runtime per process, with one buffer of kernel temporaries
+# and one ``partials``/flag read-back protocol per workspace: calls from two
+# threads would corrupt each other's stopping-rule maxima. Every call holds
+# this lock (re-entrant: a decouple callback may call couple), so threads are
+# served one after the other, safely; parallelism is across processes.
+ENGINE_LOCK = threading.RLock()
+_workspaces = collections.OrderedDict()
 
 
 def _cache():
-    return _workspaces_by_thread.setdefault(threading.get_ident(), collections.OrderedDict())
+    return _workspaces
 
 
 def _workspace(info, shape, config, device_buffers):
@@ -344,18 +232,32 @@ def _workspace(info, shape, config, device_buffers):
 
 
 def cached_workspaces():
-    """This thread's cached workspaces, least recently used first."""
+    """The cached workspaces, least recently used first."""
     return list(_cache().values())
 
 
 def clear_workspaces():
     """Free every cached workspace (their memory goes back to Taichi or NumPy)."""
-    _workspaces_by_thread.clear()
+    with ENGINE_LOCK:
+        _workspaces.clear()
 
 
 def workspace_cache_info():
-    """``{key: bytes}`` of this thread's cached workspaces (tests, benchmark)."""
+    """``{key: bytes}`` of the cached workspaces (tests, benchmark)."""
     return {k: ws.nbytes for k, ws in _cache().items()}
+
+
+def frame_copies():
+    """The benchmark's hook for timing the host<->device copies alone:
+    ``(upload(host), download(host))`` between a host frame and the device
+    frame of the most recently used workspace, or ``None`` when that
+    workspace keeps no device frame (the CPU path)."""
+    with ENGINE_LOCK:
+        ws = next(reversed(_workspaces.values()), None)
+        if ws is None or not ws.device_buffers:
+            return None
+        return (lambda host: ws.copies.upload(ws.io, host),
+                lambda host: ws.copies.download(host, ws.io))
 
 
 runtime.on_reset(clear_workspaces)
@@ -407,7 +309,7 @@ class _Run:
         self.info = info
         layout = layout or default_layout(info.arch)
         offsets = tuple(u for u, _ in model.geometry.half_stencil())
-        self.configs = {m: KernelConfig(offsets=offsets, law_kind=model.law.kind,
+        self.configs = {m: KernelConfig(offsets=offsets, law_kind=kernel_law_kind(model.law),
                                         edge=model.edge, masked=m, precision=info.precision,
                                         layout=layout) for m in (False, True)}
         if frames.on_device:
@@ -420,6 +322,10 @@ class _Run:
         self.ws = _workspace(info, frames.shape[1:], self.configs[False], device_buffers)
         self.p, self.w, self.table = _model_arrays(model, info, device_buffers)
         self.kernels = get_frame_kernels(info.precision)
+        # out= is the input (or overlaps it): each frame is kept before it is
+        # overwritten, for its bad pixels' values
+        self.aliased = False
+        self.kept = None
 
     def output(self, out):
         """The result stack (the caller's ``out`` after checks, or a new one)."""
@@ -437,6 +343,7 @@ class _Run:
                 raise IPCInputError(f"out: expected a contiguous {dt} array of shape "
                                     f"{shape[1:] if frames.was_2d else shape} on "
                                     f"{frames.data.device}")
+            self.aliased = self._check_alias(out3)
             return out3
         if out is None:
             return np.empty(shape, dtype=self.info.dtype)
@@ -446,7 +353,24 @@ class _Run:
                 and out3.flags.writeable):
             raise IPCInputError(f"out: expected a writeable C-contiguous {self.info.dtype} "
                                 f"NumPy array of shape {shape[1:] if frames.was_2d else shape}")
+        self.aliased = self._check_alias(out3)
         return out3
+
+    def _check_alias(self, out3):
+        """Whether ``out`` is the input itself (then each frame is kept before
+        it is overwritten); ``out`` overlapping the input otherwise is refused."""
+        data = self.frames.data
+        if not shares_memory(out3, data):
+            return False
+        if isinstance(data, np.ndarray):
+            same = (out3.__array_interface__["data"][0] == data.__array_interface__["data"][0]
+                    and out3.strides == data.strides)
+        else:
+            same = out3.data_ptr() == data.data_ptr() and out3.stride() == data.stride()
+        if not same:
+            raise IPCInputError("out: overlaps the input without being it; pass the input "
+                                "itself, or memory of its own")
+        return True
 
     def pinned(self, out):
         """Page-lock the NumPy input and output for this call (CUDA only)."""
@@ -461,11 +385,13 @@ class _Run:
         frame, and whether any pixel is bad."""
         frames, ws = self.frames, self.ws
         bad = None if frames.bad is None else frames.bad[k]
+        if self.aliased:
+            self.kept = frames.data[k].clone() if frames.on_device else frames.data[k].copy()
         if not self.device_buffers:
             io = out[k]
             host = frames.data[k]
             if frames.on_device:  # a CPU tensor: the same memory seen by NumPy
-                io, host = io.numpy(), host.numpy()
+                io, host = io.numpy(), _numpy_view(host, out.dtype)
                 bad = None if bad is None else bad.numpy()
             base, any_bad = _load_host(host, bad, io, ws)
             return base, io, any_bad
@@ -517,7 +443,7 @@ class _Run:
     def restore(self, k, out):
         """Bad pixels keep their input value (masked) or become NaN (not finite)."""
         frames = self.frames
-        src = frames.data[k]
+        src = self.kept if self.aliased else frames.data[k]
         if frames.on_device:
             import torch
 
@@ -573,6 +499,15 @@ def _uploadable(array, dtype):
     return array.dtype == dtype and array.flags.c_contiguous
 
 
+def _numpy_view(tensor, dtype):
+    """A CPU tensor seen by NumPy; a dtype NumPy lacks (bfloat16) converted
+    to ``dtype`` (the output's) first."""
+    try:
+        return tensor.numpy()
+    except TypeError:
+        return tensor.to(dtype).numpy()
+
+
 def _torch_u8():
     import torch
 
@@ -581,14 +516,16 @@ def _torch_u8():
 
 def run_couple(frames, model, info, layout, out=None):
     """The forward model on every frame; returns the result stack."""
-    run = _Run(frames, model, info, layout, "signal")
-    ws = run.ws
-    out = run.output(out)
-    with run.pinned(out):
-        for k in range(frames.shape[0]):
-            base, io, any_bad = run.load(k, out)
-            run.step(any_bad, ws.prev, base, ws.nxt, +1.0)
-            run.finish(k, io, ws.nxt, out, any_bad)
+    with ENGINE_LOCK, _stream_order(frames) as order:
+        run = _Run(frames, model, info, layout, "signal")
+        ws = run.ws
+        out = run.output(out)
+        with run.pinned(out):
+            for k in range(frames.shape[0]):
+                base, io, any_bad = run.load(k, out)
+                run.step(any_bad, ws.prev, base, ws.nxt, +1.0)
+                run.finish(k, io, ws.nxt, out, any_bad)
+        order.adopt(out if frames.on_device else None)
     return out
 
 
@@ -596,15 +533,22 @@ def run_decouple(frames, model, info, layout, iterate, out=None):
     """Decouple every frame; ``iterate(k, step, ws, base)`` runs the Jacobi
     iterations of frame ``k`` (the rules live with the caller) and returns the
     padded array holding the answer."""
-    run = _Run(frames, model, info, layout, "measured")
-    out = run.output(out)
-    with run.pinned(out):
-        for k in range(frames.shape[0]):
-            base, io, any_bad = run.load(k, out)
+    with ENGINE_LOCK, _stream_order(frames) as order:
+        run = _Run(frames, model, info, layout, "measured")
+        out = run.output(out)
+        with run.pinned(out):
+            for k in range(frames.shape[0]):
+                base, io, any_bad = run.load(k, out)
 
-            def step(src, dst, masked=any_bad, base=base):
-                return run.step(masked, src, base, dst, -1.0)
+                def step(src, dst, masked=any_bad, base=base):
+                    return run.step(masked, src, base, dst, -1.0)
 
-            answer = iterate(k, step, run.ws)
-            run.finish(k, io, answer, out, any_bad)
+                answer = iterate(k, step, run.ws)
+                run.finish(k, io, answer, out, any_bad)
+        order.adopt(out if frames.on_device else None)
     return out
+
+
+def _stream_order(frames):
+    """Order the call with the caller's PyTorch stream (device input only)."""
+    return torch_stream_order(frames.data if frames.on_device else None)

@@ -36,7 +36,8 @@ registers and stores them, with a plain store, into its own row of a
 :data:`FAN_IN` entries (strided, so neighbouring threads read neighbouring
 addresses; indices past the end are clamped to the last entry, which repeats a
 value and leaves the maximum unchanged); row 0 then holds
-``(max|dst - src|, max|dst|)``. The CPU ``sweep`` writes one row per strip (a
+``(max|dst - src|, max|dst|)`` (rows ``0 .. tree_rows(P) - 1`` when ``P``
+exceeds the tree's capacity: the host takes their maximum). The CPU ``sweep`` writes one row per strip (a
 few dozen) and the host takes their maximum: on a CPU each extra parallel task
 costs a wake-up of the thread pool, more than the few dozen comparisons. A
 maximum is exact in any order, so the result does not depend on the layout or
@@ -77,9 +78,13 @@ import functools
 from dataclasses import dataclass
 
 from . import runtime
+from ._alpha import kernel_law_kind, make_alpha, make_exp
 
-__all__ = ["KernelConfig", "get_step_kernel", "get_frame_kernels", "make_alpha", "make_exp",
-           "LAYOUTS", "partials_count", "FAN_IN", "TREE_LEVELS", "MAX_FINITE"]
+__all__ = ["KernelConfig", "alpha_sources", "get_step_kernel", "get_frame_kernels",
+           "get_reduce_kernel", "LAYOUTS", "partials_count", "tree_rows", "FAN_IN",
+           "TREE_LEVELS", "MAX_FINITE",
+           # the device law, from ._alpha
+           "kernel_law_kind", "make_alpha", "make_exp"]
 
 LAYOUTS = ("sweep", "pixel")
 SPREAD = 512  # ``sweep`` layout: loop iterations per strip (see step_sweep)
@@ -91,7 +96,7 @@ MAX_FINITE = {"f64": 1.7976931348623157e308, "f32": 3.4028234663852886e38}
 @dataclass(frozen=True)
 class KernelConfig:
     offsets: tuple  # half-stencil offsets ((dy, dx), ...), dy > 0 or (dy == 0 and dx > 0)
-    law_kind: str  # "parametric" | "table"
+    law_kind: str  # "parametric" | "table" | "constant" (see kernel_law_kind)
     edge: str  # "zero" | "isolated"
     masked: bool
     precision: str  # "f64" | "f32"
@@ -117,97 +122,18 @@ class KernelConfig:
         return tuple(k for k, (dy, _) in enumerate(self.offsets) if dy > 0)
 
 
+def tree_rows(n):
+    """Rows of ``partials`` that hold the maxima after the tree has reduced
+    ``n`` entries: 1 up to ``FAN_IN ** TREE_LEVELS`` entries, more beyond
+    (a frame wider than that many columns); the host takes their maximum."""
+    return -(-n // FAN_IN ** TREE_LEVELS)
+
+
 def partials_count(layout, height, width, strip):
     """Rows of the ``partials`` array a step on a ``height x width`` frame
     (unpadded) writes: one per strip (sweep) or per column run (pixel)."""
     strips = -(-height // strip)
     return strips if layout == "sweep" else strips * width
-
-
-def make_exp(real_is_f64):
-    """An inlinable ``exp(x)`` for ``x <= 0`` (the law's arguments).
-
-    Cody-Waite range reduction ``x = n ln2 + r`` (|r| <= ln2/2), a Taylor
-    polynomial evaluated by Estrin's scheme (short dependency chains keep
-    several exponentials in flight), and ``2**n`` built from its exponent bits
-    with the round-to-integer "magic number" trick (no float->int conversion).
-    f64: degree 12, relative error < 1e-15; f32: degree 7, < 3e-7. Inputs below
-    the smallest normal result are clamped (exp(-708) ~ 3e-308 instead of 0).
-    """
-    import taichi as ti
-
-    if real_is_f64:
-        @ti.func
-        def exp(x):
-            magic = 6755399441055744.0  # 1.5 * 2**52
-            x = ti.max(x, -708.0)
-            t = x * 1.4426950408889634 + magic
-            n = t - magic
-            r = x - n * 0.6931471803691238 - n * 1.9082149292705877e-10
-            r2 = r * r
-            r4 = r2 * r2
-            r8 = r4 * r4
-            d0 = (1.0 + r) + r2 * (0.5 + r * (1.0 / 6.0))
-            d1 = (1.0 / 24.0 + r * (1.0 / 120.0)) + r2 * (1.0 / 720.0 + r * (1.0 / 5040.0))
-            d2 = ((1.0 / 40320.0 + r * (1.0 / 362880.0))
-                  + r2 * (1.0 / 3628800.0 + r * (1.0 / 39916800.0)))
-            p = (d0 + r4 * d1) + r8 * (d2 + r4 * (1.0 / 479001600.0))
-            scale = ti.bit_cast((ti.bit_cast(t, ti.i64) + 1023) << 52, ti.f64)
-            return p * scale
-    else:
-        @ti.func
-        def exp(x):
-            magic = ti.f32(12582912.0)  # 1.5 * 2**23
-            x = ti.max(x, ti.f32(-87.0))
-            t = x * ti.f32(1.442695) + magic
-            n = t - magic
-            r = x - n * ti.f32(0.693145751953125) - n * ti.f32(1.428606765330187e-06)
-            r2 = r * r
-            r4 = r2 * r2
-            d0 = (ti.f32(1.0) + r) + r2 * (ti.f32(0.5) + r * ti.f32(1.0 / 6.0))
-            d1 = ((ti.f32(1.0 / 24.0) + r * ti.f32(1.0 / 120.0))
-                  + r2 * (ti.f32(1.0 / 720.0) + r * ti.f32(1.0 / 5040.0)))
-            p = d0 + r4 * d1
-            scale = ti.bit_cast((ti.bit_cast(t, ti.i32) + 127) << 23, ti.f32)
-            return p * scale
-    return exp
-
-
-def make_alpha(law_kind, precision, fast_exp=True):
-    """The Taichi device function ``alpha(s, n, p, table)`` of a law kind: the
-    one device-side evaluation of the coupling law, used by both kernel
-    layouts and timed by the benchmark's floor measurement.
-
-    ``p`` holds :meth:`ParametricLaw.kernel_params` (amplitudes, reciprocal
-    scales, floor) or the table's grid for a :class:`TabulatedLaw`
-    (``table``). ``fast_exp`` uses the inlined :func:`make_exp` (the CPU's
-    scalar code gains 1.7x); otherwise the arch's own ``exp`` (CUDA's is fast).
-    """
-    import taichi as ti
-
-    real = ti.f64 if precision == "f64" else ti.f32
-    table_law = law_kind == "table"
-    exp = make_exp(precision == "f64") if fast_exp else ti.exp
-
-    @ti.func
-    def alpha(s, n, p: ti.template(), table: ti.template()):
-        a = ti.cast(0.0, real)
-        if ti.static(table_law):
-            last = p[2]
-            u = ti.min(ti.max((s - p[0]) * p[1], 0.0), last)
-            v = ti.min(ti.max((n - p[0]) * p[1], 0.0), last)
-            i0 = ti.min(ti.cast(ti.floor(u), ti.i32), ti.cast(last, ti.i32) - 1)
-            j0 = ti.min(ti.cast(ti.floor(v), ti.i32), ti.cast(last, ti.i32) - 1)
-            fu = u - i0
-            fv = v - j0
-            a = ((1 - fu) * ((1 - fv) * table[i0, j0] + fv * table[i0, j0 + 1])
-                 + fu * ((1 - fv) * table[i0 + 1, j0] + fv * table[i0 + 1, j0 + 1]))
-        else:
-            a = (p[0] * exp(-ti.abs(s - n) * p[1])
-                 + p[2] * exp(-ti.sqrt(s * s + n * n) * p[3]) + p[4])
-        return a
-
-    return alpha
 
 
 def make_tree_reduction():
@@ -272,9 +198,33 @@ def get_reduce_kernel(precision):
     return reduce_partials
 
 
+def alpha_sources(config):
+    """Where each half-stencil offset's second alpha (``a_minus``, the pair
+    with the neighbour at ``p - u``) comes from, per offset (static):
+
+    - ``"row"``: the sweep's registers, carried along the row (``dy == 0``);
+    - ``"ring"``: the sweep's ring buffer, written ``dy`` rows earlier;
+    - ``"column"``: the pixel layout's registers, carried down the column (``dx == 0``);
+    - ``"fresh"``: evaluated again (the pixel layout's other offsets, and every
+      offset of a constant law, whose alpha is one number: nothing to carry).
+    """
+    if config.law_kind == "constant":
+        return ("fresh",) * len(config.offsets)
+    if config.layout == "sweep":
+        return tuple("row" if dy == 0 else "ring" for dy, _ in config.offsets)
+    return tuple("column" if dx == 0 else "fresh" for _, dx in config.offsets)
+
+
 @functools.lru_cache(maxsize=None)
 def get_step_kernel(config):
-    """Build (once per config) the Taichi kernel for one coupling step."""
+    """Build (once per config) the Taichi kernel for one coupling step.
+
+    Both layouts are built from the same device functions: ``pair`` (one
+    pair's alpha, gated by ``ok``), ``pixel_flow`` (the coupling term of one
+    pixel, each offset's second alpha taken from where :func:`alpha_sources`
+    says) and ``emit`` (the new value written, the stopping-rule maxima
+    updated); the layouts differ only in their loops and in what they carry.
+    """
     import taichi as ti
 
     if config.layout not in LAYOUTS:
@@ -286,8 +236,10 @@ def get_step_kernel(config):
     uses_ok = config.uses_ok
     vertical = config.vertical
     depth = config.ring_depth
-    sweep = config.layout == "sweep"
-    # static bookkeeping for the sweep, worked out here in plain Python
+    sources = alpha_sources(config)
+    # static bookkeeping of the carried alphas, worked out here in plain Python
+    carries_row = "row" in sources
+    rings = "ring" in sources
     carry_at = tuple(sum(ddx for ddy, ddx in offsets[:k] if ddy == 0) for k in range(n_off))
     n_carry = max(1, sum(dx for dy, dx in offsets if dy == 0))
     ring_index = tuple(vertical.index(k) if k in vertical else -1 for k in range(n_off))
@@ -295,33 +247,92 @@ def get_step_kernel(config):
     left_extra = tuple(tuple(range(-offsets[k][1], 0)) for k in vertical)
     right_extra = tuple(max(0, -offsets[k][1]) for k in vertical)
     prologue_lo = tuple(min(0, -offsets[k][1]) for k in vertical)
-    # the pixel layout carries the alphas of the vertical pairs (dy, 0) down its column
     vcarry_at = tuple(sum(ddy for ddy, ddx in offsets[:k] if ddx == 0) for k in range(n_off))
     n_vcarry = max(1, sum(dy for dy, dx in offsets if dx == 0))
+    carry_size = n_carry if config.layout == "sweep" else n_vcarry
 
-    alpha = make_alpha(config.law_kind, config.precision, fast_exp=sweep)
+    alpha = make_alpha(config.law_kind, config.precision, fast_exp=config.layout == "sweep")
     shrink, passes = make_tree_reduction()
+
+    n_coef = 2 * n_off + 1
+
+    @ti.func
+    def coefficients(p: ti.template(), w: ti.template()):
+        """The geometry's weights ``(w[k, 0], w[k, 1])`` for each offset k and,
+        last, a constant law's alpha, read once per thread into registers
+        (read from memory at every pixel, the compiler cannot keep them there:
+        ``dst`` might alias them)."""
+        coef = ti.Vector([0.0] * n_coef, dt=real)
+        for k in ti.static(range(n_off)):
+            coef[2 * k] = w[k, 0]
+            coef[2 * k + 1] = w[k, 1]
+        if ti.static(config.law_kind == "constant"):
+            coef[n_coef - 1] = p[4]
+        return coef
 
     @ti.func
     def pair(src: ti.template(), ok: ti.template(), p: ti.template(), table: ti.template(),
-             y, x, dy: ti.template(), dx: ti.template()):
+             coef: ti.template(), y, x, dy: ti.template(), dx: ti.template()):
         """alpha of the pair (y, x) -- (y + dy, x + dx), padded coordinates."""
-        a = alpha(src[y, x], src[y + dy, x + dx], p, table)
+        a = ti.cast(0.0, real)
+        if ti.static(config.law_kind == "constant"):
+            a = coef[n_coef - 1]  # what alpha() returns for this law, kept in a register
+        else:
+            a = alpha(src[y, x], src[y + dy, x + dx], p, table)
         if ti.static(uses_ok):
             a *= ti.cast(ok[y, x] * ok[y + dy, x + dx], real)
         return a
 
     @ti.func
-    def pair_flow(flow, src: ti.template(), w: ti.template(), y, x, sv, k: ti.template(),
+    def pair_flow(flow, src: ti.template(), coef: ti.template(), y, x, sv, k: ti.template(),
                   a_plus, a_minus):
         """``flow`` plus what pixel (y, x) gains through offset k: the neighbour
         at p + u sends by -u (weight w[k, 1]), p sends to it by +u (w[k, 0]);
         likewise with the neighbour at p - u."""
         dy, dx = ti.static(offsets[k])
-        wp = w[k, 0]  # weight of the move p -> p+u
-        wm = w[k, 1]  # weight of the move p -> p-u
+        wp = coef[2 * k]  # weight of the move p -> p+u
+        wm = coef[2 * k + 1]  # weight of the move p -> p-u
         return (flow + a_plus * (wm * src[y + dy, x + dx] - wp * sv)
                 + a_minus * (wp * src[y - dy, x - dx] - wm * sv))
+
+    @ti.func
+    def pixel_flow(src: ti.template(), ok: ti.template(), p: ti.template(),
+                   coef: ti.template(), table: ti.template(), ring: ti.template(), s, i, y, x,
+                   sv, carry: ti.template()):
+        """The coupling term at padded (y, x) (row ``i`` of the frame); the
+        alphas it computes are carried for the pixels that reuse them."""
+        flow = ti.cast(0.0, real)
+        for k in ti.static(range(n_off)):
+            dy, dx = ti.static(offsets[k])
+            a_plus = pair(src, ok, p, table, coef, y, x, dy, dx)
+            a_minus = ti.cast(0.0, real)
+            if ti.static(sources[k] == "row"):
+                at = ti.static(carry_at[k])
+                a_minus = carry[at]
+                for m in ti.static(range(dx - 1)):
+                    carry[at + m] = carry[at + m + 1]
+                carry[at + dx - 1] = a_plus
+            elif ti.static(sources[k] == "ring"):
+                kv = ti.static(ring_index[k])
+                a_minus = ring[s, kv, (i - dy + r) % depth, x - dx]
+                ring[s, kv, (i + r) % depth, x] = a_plus
+            elif ti.static(sources[k] == "column"):
+                at = ti.static(vcarry_at[k])
+                a_minus = carry[at]
+                for m in ti.static(range(dy - 1)):
+                    carry[at + m] = carry[at + m + 1]
+                carry[at + dy - 1] = a_plus
+            else:
+                a_minus = pair(src, ok, p, table, coef, y - dy, x - dx, dy, dx)
+            flow = pair_flow(flow, src, coef, y, x, sv, k, a_plus, a_minus)
+        return flow
+
+    @ti.func
+    def emit(base: ti.template(), dst: ti.template(), sign, i, j, flow):
+        """Write ``base + sign * flow`` at frame pixel (i, j); returns it."""
+        v = base[i, j] + sign * flow
+        dst[i + r, j + r] = v
+        return v
 
     # the two layouts take the same arguments (the pixel layout ignores ring)
     frame = ti.types.ndarray(dtype=real, ndim=2)
@@ -341,57 +352,48 @@ def get_step_kernel(config):
         for task in range(ring.shape[0] * SPREAD):
             if task % SPREAD == 0:
                 s = task // SPREAD
+                coef = coefficients(p, w)
                 i0 = s * strip
                 i1 = ti.min(h, i0 + strip)
                 dmax = ti.cast(0.0, real)
                 smax = ti.cast(0.0, real)
-                # prologue: pairs that start in the dy rows above the strip
-                for kv in ti.static(range(len(vertical))):
-                    dy, dx = ti.static(offsets[vertical[kv]])
-                    for row in range(i0 - dy, i0):
-                        slot = (row + r) % depth
-                        for c in range(prologue_lo[kv], wd + right_extra[kv]):
-                            ring[s, kv, slot, c + r] = pair(src, ok, p, table, row + r, c + r,
-                                                            dy, dx)
-                for i in range(i0, i1):
-                    y = i + r
-                    # pairs starting beyond the row's ends that later rows read back
+                if ti.static(rings):
+                    # prologue: pairs that start in the dy rows above the strip
                     for kv in ti.static(range(len(vertical))):
                         dy, dx = ti.static(offsets[vertical[kv]])
-                        slot = (i + r) % depth
-                        for c in ti.static(left_extra[kv]):
-                            ring[s, kv, slot, c + r] = pair(src, ok, p, table, y, c + r, dy, dx)
-                        for c in range(wd, wd + right_extra[kv]):
-                            ring[s, kv, slot, c + r] = pair(src, ok, p, table, y, c + r, dy, dx)
+                        for row in range(i0 - dy, i0):
+                            slot = (row + r) % depth
+                            for c in range(prologue_lo[kv], wd + right_extra[kv]):
+                                ring[s, kv, slot, c + r] = pair(src, ok, p, table, coef,
+                                                                row + r, c + r, dy, dx)
+                for i in range(i0, i1):
+                    y = i + r
+                    if ti.static(rings):
+                        # pairs starting beyond the row's ends that later rows read back
+                        for kv in ti.static(range(len(vertical))):
+                            dy, dx = ti.static(offsets[vertical[kv]])
+                            slot = (i + r) % depth
+                            for c in ti.static(left_extra[kv]):
+                                ring[s, kv, slot, c + r] = pair(src, ok, p, table, coef,
+                                                                y, c + r, dy, dx)
+                            for c in range(wd, wd + right_extra[kv]):
+                                ring[s, kv, slot, c + r] = pair(src, ok, p, table, coef,
+                                                                y, c + r, dy, dx)
                     # horizontal pairs to the left of column 0, carried in registers
-                    carry = ti.Vector([0.0] * n_carry, dt=real)
-                    for k in ti.static(range(n_off)):
-                        dy, dx = ti.static(offsets[k])
-                        if ti.static(dy == 0):
-                            at = ti.static(carry_at[k])
-                            for m in ti.static(range(dx)):
-                                carry[at + m] = pair(src, ok, p, table, y, r - dx + m, 0, dx)
+                    carry = ti.Vector([0.0] * carry_size, dt=real)
+                    if ti.static(carries_row):
+                        for k in ti.static(range(n_off)):
+                            dy, dx = ti.static(offsets[k])
+                            if ti.static(dy == 0):
+                                at = ti.static(carry_at[k])
+                                for m in ti.static(range(dx)):
+                                    carry[at + m] = pair(src, ok, p, table, coef, y,
+                                                         r - dx + m, 0, dx)
                     for j in range(wd):
                         x = j + r
                         sv = src[y, x]
-                        flow = ti.cast(0.0, real)
-                        for k in ti.static(range(n_off)):
-                            dy, dx = ti.static(offsets[k])
-                            a_plus = pair(src, ok, p, table, y, x, dy, dx)
-                            a_minus = ti.cast(0.0, real)
-                            if ti.static(dy == 0):
-                                at = ti.static(carry_at[k])
-                                a_minus = carry[at]
-                                for m in ti.static(range(dx - 1)):
-                                    carry[at + m] = carry[at + m + 1]
-                                carry[at + dx - 1] = a_plus
-                            else:
-                                kv = ti.static(ring_index[k])
-                                a_minus = ring[s, kv, (i - dy + r) % depth, x - dx]
-                                ring[s, kv, (i + r) % depth, x] = a_plus
-                            flow = pair_flow(flow, src, w, y, x, sv, k, a_plus, a_minus)
-                        v = base[i, j] + sign * flow
-                        dst[y, x] = v
+                        flow = pixel_flow(src, ok, p, coef, table, ring, s, i, y, x, sv, carry)
+                        v = emit(base, dst, sign, i, j, flow)
                         dmax = ti.max(dmax, ti.abs(v - sv))
                         smax = ti.max(smax, ti.abs(v))
                 part[s, 0] = dmax
@@ -411,44 +413,32 @@ def get_step_kernel(config):
         n5 = shrink(n4)
         for b, j in ti.ndrange(runs, wd):
             x = j + r
+            coef = coefficients(p, w)
             i0 = b * strip
             i1 = ti.min(h, i0 + strip)
             dmax = ti.cast(0.0, real)
             smax = ti.cast(0.0, real)
             # vertical pairs (dy, 0) that end in the run's first dy rows start above it
-            carry = ti.Vector([0.0] * n_vcarry, dt=real)
+            carry = ti.Vector([0.0] * carry_size, dt=real)
             for k in ti.static(range(n_off)):
                 dy, dx = ti.static(offsets[k])
-                if ti.static(dx == 0):
+                if ti.static(sources[k] == "column"):
                     at = ti.static(vcarry_at[k])
                     for m in ti.static(range(dy)):
-                        carry[at + m] = pair(src, ok, p, table, i0 + r - dy + m, x, dy, 0)
+                        carry[at + m] = pair(src, ok, p, table, coef, i0 + r - dy + m, x,
+                                             dy, 0)
             for i in range(i0, i1):
                 y = i + r
                 sv = src[y, x]
-                flow = ti.cast(0.0, real)
-                for k in ti.static(range(n_off)):
-                    dy, dx = ti.static(offsets[k])
-                    a_plus = pair(src, ok, p, table, y, x, dy, dx)
-                    a_minus = ti.cast(0.0, real)
-                    if ti.static(dx == 0):
-                        at = ti.static(vcarry_at[k])
-                        a_minus = carry[at]
-                        for m in ti.static(range(dy - 1)):
-                            carry[at + m] = carry[at + m + 1]
-                        carry[at + dy - 1] = a_plus
-                    else:
-                        a_minus = pair(src, ok, p, table, y - dy, x - dx, dy, dx)
-                    flow = pair_flow(flow, src, w, y, x, sv, k, a_plus, a_minus)
-                v = base[i, j] + sign * flow
-                dst[y, x] = v
+                flow = pixel_flow(src, ok, p, coef, table, ring, 0, i, y, x, sv, carry)
+                v = emit(base, dst, sign, i, j, flow)
                 dmax = ti.max(dmax, ti.abs(v - sv))
                 smax = ti.max(smax, ti.abs(v))
             part[b * wd + j, 0] = dmax
             part[b * wd + j, 1] = smax
         passes(part, n0, n1, n2, n3, n4, n5)
 
-    return step_sweep if sweep else step_pixel
+    return step_sweep if config.layout == "sweep" else step_pixel
 
 
 @dataclass(frozen=True)

@@ -65,17 +65,27 @@ def test_argument_validation(cpu):
 
 
 def test_changing_coefficients_does_not_recompile(cpu, rng):
-    from ipc_taichi._kernels import get_step_kernel
+    from ipc_taichi._kernels import KernelConfig, get_step_kernel
 
     signal = rng.uniform(0, 60000, (16, 16))
     ipc_taichi.decouple(ipc_taichi.couple(signal, law="donlon2018"), law="donlon2018")
     kernels_before = get_step_kernel.cache_info().currsize
     compiled = {id(k): len(k._primal.compiled_kernels) for k in _live_kernels()}
-    for law in ("donlon2018_printed", "constant:0.02", "parametric:0.003,1e4,0.002,3e4,0.009",
+    for law in ("donlon2018_printed", "parametric:0.003,1e4,0.002,3e4,0.009",
                 ipc_taichi.donlon2018().with_values(floor=0.007)):
         ipc_taichi.decouple(ipc_taichi.couple(signal, law=law), law=law)
     assert get_step_kernel.cache_info().currsize == kernels_before
     assert {id(k): len(k._primal.compiled_kernels) for k in _live_kernels()} == compiled
+    # a constant law has its own kernel (no alpha evaluation), built once for all values
+    ipc_taichi.decouple(ipc_taichi.couple(signal, law="constant:0.02"), law="constant:0.02")
+    with_constant = get_step_kernel.cache_info().currsize
+    assert with_constant <= kernels_before + 1
+    constant_kernel = get_step_kernel(KernelConfig(((0, 1), (1, 0)), "constant", "zero", False,
+                                                   "f64"))
+    assert len(constant_kernel._primal.compiled_kernels) == 1
+    ipc_taichi.decouple(ipc_taichi.couple(signal, law="constant:0.01"), law="constant:0.01")
+    assert get_step_kernel.cache_info().currsize == with_constant
+    assert len(constant_kernel._primal.compiled_kernels) == 1
 
 
 def _live_kernels():

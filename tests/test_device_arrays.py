@@ -276,7 +276,8 @@ class _FakeLib:
 
     def cuMemHostRegister_v2(self, address, nbytes, flags):
         self.calls.append(("register", address.value))
-        if address.value in self.locked:
+        lo, hi = address.value, address.value + nbytes.value
+        if any(lo < a + n and a < hi for a, n in self.locked.items()):  # as CUDA: overlap
             return _device.CUDA_ERROR_HOST_MEMORY_ALREADY_REGISTERED
         self.locked[address.value] = nbytes.value
         return 0
@@ -299,16 +300,17 @@ def test_pinning_locks_once_and_unlocks_what_it_locked():
     user = _device.pinned_empty((_device.PIN_MIN_BYTES // 8,), arch="cuda", driver=driver)
     user_address = user.ctypes.data
     assert driver.lib.locked == {user_address: user.nbytes}
+    big_pages = big.ctypes.data
     with _device.pinned_for_call([big, big[10:], small, user], "cuda", driver=driver) as pins:
-        assert set(driver.lib.locked) == {big.ctypes.data, user_address}
-        assert pins.locked == [big.ctypes.data]  # the view shares big's lock
+        assert set(driver.lib.locked) == {big_pages, user_address}
+        assert pins.locked == [big_pages]  # the view shares big's lock
     assert driver.lib.locked == {user_address: user.nbytes}  # the user's lock stays
     with pytest.raises(KeyError):
         with _device.pinned_for_call([big], "cuda", driver=driver):
             raise KeyError("boom")
-    assert big.ctypes.data not in driver.lib.locked  # unlocked on error too
+    assert driver.lib.locked == {user_address: user.nbytes}  # unlocked on error too
     with _device.pinned_for_call([big], "cpu", driver=driver):
-        assert big.ctypes.data not in driver.lib.locked  # a no-op off CUDA
+        assert driver.lib.locked == {user_address: user.nbytes}  # a no-op off CUDA
     del user
     gc.collect()
     assert driver.lib.locked == {}  # unlocked when the array is collected
@@ -317,6 +319,40 @@ def test_pinning_locks_once_and_unlocks_what_it_locked():
     driver.lib.cuMemHostRegister_v2 = lambda *args: 1  # the driver refuses to lock
     with _device.pinned_for_call([big], "cuda", driver=driver) as pins:
         assert pins.locked == []  # copied from pageable memory instead, no error
+
+
+def test_pinning_locks_a_views_span_not_its_parent_stack():
+    driver = _device.CudaDriver(_FakeLib())
+    stack = np.zeros((8, 512, 1024 + 3))  # 8 frames of 4.2 MB
+    frame = stack[5]
+    with _device.pinned_for_call([frame], "cuda", driver=driver) as pins:
+        assert driver.lib.locked == {frame.ctypes.data: frame.nbytes}  # not the 34 MB stack
+        assert pins.locked == [frame.ctypes.data]
+    assert driver.lib.locked == {}
+    column = stack[:, :, 7]  # strided: from its first to its last element
+    with _device.pinned_for_call([column], "cuda", driver=driver):
+        (address, nbytes), = driver.lib.locked.items()
+        assert address == column.ctypes.data
+        assert nbytes == (column.size - 1) * 8 * (1024 + 3) + 8
+
+
+def test_pinning_interrupted_unlocks_what_it_locked():
+    lib = _FakeLib()
+    driver = _device.CudaDriver(lib)
+    first, second = np.zeros(_device.PIN_MIN_BYTES // 8), np.zeros(_device.PIN_MIN_BYTES // 8)
+    register = lib.cuMemHostRegister_v2
+
+    def interrupted(address, nbytes, flags):
+        if lib.locked:  # Ctrl-C while locking the second array
+            raise KeyboardInterrupt
+        return register(address, nbytes, flags)
+
+    lib.cuMemHostRegister_v2 = interrupted
+    with pytest.raises(KeyboardInterrupt):
+        with _device.pinned_for_call([first, second], "cuda", driver=driver):
+            pass  # pragma: no cover (never entered)
+    assert lib.locked == {}
+    assert ("unregister", first.ctypes.data) in lib.calls
 
 
 def test_ndarray_pointer_addresses_taichi_memory(cpu):

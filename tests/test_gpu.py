@@ -165,3 +165,74 @@ def test_one_worker_per_gpu():
     assert sorted(g for g, _ in results) == sorted(gpus)
     for _, got in results:
         assert np.abs(got - want).max() <= 1e-12 * want.max()
+
+
+@pytest.mark.parametrize("precision", ["f64", "f32"])
+def test_constant_law_kernel_on_cuda(precision):
+    """The constant-law kernel on CUDA: the general kernel's results (a law
+    whose exponential terms vanish against its floor takes the general one)."""
+    from ipc_taichi import ParametricLaw
+
+    rng = np.random.default_rng(8)
+    measured = couple_reference(rng.uniform(0, 60000, (257, 300)), law="constant:0.0125")
+    const = ipc_taichi.decouple(measured, law="constant:0.0125", arch="cuda",
+                                precision=precision)
+    general = ipc_taichi.decouple(measured, law=ParametricLaw(1e-300, 1e4, 0.0, 1e4, 0.0125),
+                                  arch="cuda", precision=precision)
+    rtol = 1e-12 if precision == "f64" else 1e-6
+    np.testing.assert_allclose(const, general, rtol=rtol, atol=rtol * 6e4)
+
+
+def test_work_follows_the_callers_torch_stream():
+    """A tensor made on a side stream and used there: decouple waits for it
+    and the side stream waits for the result (no host synchronisation)."""
+    torch = _torch_cuda()
+    rng = np.random.default_rng(9)
+    measured = couple_reference(rng.uniform(0, 60000, (1024, 1024)))
+    want = ipc_taichi.decouple(measured, arch="cuda", precision="f64")
+    side = torch.cuda.Stream()
+    with torch.cuda.stream(side):
+        host = torch.from_numpy(measured).pin_memory()
+        t = torch.zeros_like(host, device="cuda")
+        for _ in range(20):  # keep the side stream busy before the data lands
+            t.mul_(1.0)
+        t.copy_(host, non_blocking=True)
+        got = ipc_taichi.decouple(t, arch="cuda", precision="f64")
+        total = got.sum()  # on the side stream, after the result is ready
+    side.synchronize()
+    assert np.array_equal(got.cpu().numpy(), want)
+    assert abs(float(total) - want.sum()) <= 1e-9 * abs(want.sum())  # summed on the GPU
+
+
+def test_wide_frames_and_out_as_input_on_cuda(monkeypatch):
+    """The tree's capacity made small (2**5 partials): maxima still of the
+    whole frame; and out= given as the input keeps its bad pixels."""
+    from ipc_taichi import _engine, _kernels
+
+    torch = _torch_cuda()
+    rng = np.random.default_rng(10)
+    signal = rng.uniform(0, 1000, (64, 300))
+    signal[40, 290] = 60000.0
+    measured = couple_reference(signal)
+    ref, ref_info = ipc_taichi.decouple(measured, arch="cuda", precision="f64", full_output=True)
+    monkeypatch.setattr(_kernels, "FAN_IN", 2)
+    _kernels._clear_caches()
+    _engine.clear_workspaces()
+    try:
+        got, info = ipc_taichi.decouple(measured, arch="cuda", precision="f64",
+                                        full_output=True)
+    finally:
+        monkeypatch.undo()
+        _kernels._clear_caches()
+        _engine.clear_workspaces()
+    np.testing.assert_allclose(info.max_signal, ref_info.max_signal, rtol=1e-12)
+    assert np.array_equal(got, ref)
+    measured[3, 4] = np.nan
+    t = torch.from_numpy(measured).cuda()
+    mask = np.zeros(measured.shape, bool)
+    mask[10, 11] = True
+    want = ipc_taichi.decouple(measured, arch="cuda", precision="f64", mask=mask)
+    back = ipc_taichi.decouple(t, arch="cuda", precision="f64", mask=mask, out=t)
+    assert back.data_ptr() == t.data_ptr()
+    assert np.array_equal(t.cpu().numpy(), want, equal_nan=True)
+    assert t[10, 11].item() == measured[10, 11]

@@ -3,6 +3,7 @@
 import os
 
 from ..bench import CUDA_SIZE, KINDS, SIZES, STACK_FRAMES, run_benchmark, write_results
+from ..bench.pipeline import PIPELINE_SIZE
 from ..errors import IPCInputError
 
 __all__ = ["add_parser", "run"]
@@ -30,6 +31,10 @@ def add_parser(sub):
                         "a GPU)")
     p.add_argument("--stack", type=int, default=STACK_FRAMES,
                    help=f"frames in the CUDA stack row (default {STACK_FRAMES})")
+    p.add_argument("--jwst-size", type=int, default=PIPELINE_SIZE,
+                   help="frame side of the ramp on which the constant law runs beside the "
+                        f"JWST pipeline's ipc step (default {PIPELINE_SIZE}; 0 skips it; "
+                        "skipped without the jwst package)")
     p.add_argument("--output", default="bench", help="directory for results (default: bench)")
     p.set_defaults(run=run)
 
@@ -43,14 +48,16 @@ def run(args):
     bad = [k for k in kinds if k not in KINDS]
     if bad or not sizes or min(sizes) < 8 or args.repeats < 1:
         raise IPCInputError(f"bench: need sizes >= 8, kinds in {KINDS}, repeats >= 1")
-    if args.cuda_size < 0 or args.stack < 1:
-        raise IPCInputError("bench: need --cuda-size >= 0 and --stack >= 1")
+    if args.cuda_size < 0 or args.stack < 1 or args.jwst_size < 0 or 0 < args.jwst_size < 16:
+        raise IPCInputError("bench: need --cuda-size >= 0, --stack >= 1 and --jwst-size 0 "
+                            "or >= 16")
     configs = args.configs.split(",") if args.configs else None
     print(f"ipc-taichi bench: sizes {sizes}, frames {kinds}, {args.repeats} repeats",
           flush=True)
     results = run_benchmark(sizes, kinds, args.repeats, configs,
                             progress=lambda s: print(s, flush=True),
-                            cuda_size=args.cuda_size, stack=args.stack)
+                            cuda_size=args.cuda_size, stack=args.stack,
+                            pipeline_size=args.jwst_size)
     for note in results["notes"]:
         print("note:", note)
     write_results(results, args.output)

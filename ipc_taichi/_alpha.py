@@ -1,0 +1,109 @@
+"""The coupling law on the device: the one Taichi evaluation of alpha(S, N)
+(:func:`make_alpha`), the inlined exponential it uses on the CPU
+(:func:`make_exp`), and which kernel a law needs (:func:`kernel_law_kind`:
+a constant law needs no evaluation at all). The NumPy form of the same
+formula is :meth:`ipc_taichi.laws.ParametricLaw.alpha`.
+"""
+
+__all__ = ["kernel_law_kind", "make_exp", "make_alpha"]
+
+
+def kernel_law_kind(law):
+    """The kernel's law kind for ``law``: ``"constant"`` for a parametric law
+    whose amplitudes are both zero (alpha is its floor whatever the signals:
+    the kernel evaluates nothing, and its results are bit-identical to the
+    general kernel's, where ``0 * exp(.) + 0 * exp(.) + floor`` is exactly the
+    floor), else the law's own kind (``"parametric"``, ``"table"``)."""
+    if law.kind == "parametric" and law.amp_diff == 0 and law.amp_level == 0:
+        return "constant"
+    return law.kind
+
+
+def make_exp(real_is_f64):
+    """An inlinable ``exp(x)`` for ``x <= 0`` (the law's arguments).
+
+    Cody-Waite range reduction ``x = n ln2 + r`` (|r| <= ln2/2), a Taylor
+    polynomial evaluated by Estrin's scheme (short dependency chains keep
+    several exponentials in flight), and ``2**n`` built from its exponent bits
+    with the round-to-integer "magic number" trick (no float->int conversion).
+    f64: degree 12, relative error < 1e-15; f32: degree 7, < 3e-7. Inputs below
+    the smallest normal result are clamped (exp(-708) ~ 3e-308 instead of 0).
+    """
+    import taichi as ti
+
+    if real_is_f64:
+        @ti.func
+        def exp(x):
+            magic = 6755399441055744.0  # 1.5 * 2**52
+            x = ti.max(x, -708.0)
+            t = x * 1.4426950408889634 + magic
+            n = t - magic
+            r = x - n * 0.6931471803691238 - n * 1.9082149292705877e-10
+            r2 = r * r
+            r4 = r2 * r2
+            r8 = r4 * r4
+            d0 = (1.0 + r) + r2 * (0.5 + r * (1.0 / 6.0))
+            d1 = (1.0 / 24.0 + r * (1.0 / 120.0)) + r2 * (1.0 / 720.0 + r * (1.0 / 5040.0))
+            d2 = ((1.0 / 40320.0 + r * (1.0 / 362880.0))
+                  + r2 * (1.0 / 3628800.0 + r * (1.0 / 39916800.0)))
+            p = (d0 + r4 * d1) + r8 * (d2 + r4 * (1.0 / 479001600.0))
+            scale = ti.bit_cast((ti.bit_cast(t, ti.i64) + 1023) << 52, ti.f64)
+            return p * scale
+    else:
+        @ti.func
+        def exp(x):
+            magic = ti.f32(12582912.0)  # 1.5 * 2**23
+            x = ti.max(x, ti.f32(-87.0))
+            t = x * ti.f32(1.442695) + magic
+            n = t - magic
+            r = x - n * ti.f32(0.693145751953125) - n * ti.f32(1.428606765330187e-06)
+            r2 = r * r
+            r4 = r2 * r2
+            d0 = (ti.f32(1.0) + r) + r2 * (ti.f32(0.5) + r * ti.f32(1.0 / 6.0))
+            d1 = ((ti.f32(1.0 / 24.0) + r * ti.f32(1.0 / 120.0))
+                  + r2 * (ti.f32(1.0 / 720.0) + r * ti.f32(1.0 / 5040.0)))
+            p = d0 + r4 * d1
+            scale = ti.bit_cast((ti.bit_cast(t, ti.i32) + 127) << 23, ti.f32)
+            return p * scale
+    return exp
+
+
+def make_alpha(law_kind, precision, fast_exp=True):
+    """The Taichi device function ``alpha(s, n, p, table)`` of a law kind: the
+    one device-side evaluation of the coupling law, used by both kernel
+    layouts and timed by the benchmark's floor measurement.
+
+    ``p`` holds :meth:`ParametricLaw.kernel_params` (amplitudes, reciprocal
+    scales, floor) or the table's grid for a :class:`TabulatedLaw`
+    (``table``). Law kind ``"constant"`` (see :func:`kernel_law_kind`) reads
+    the floor alone: no exponential. ``fast_exp`` uses the inlined :func:`make_exp` (the CPU's
+    scalar code gains 1.7x); otherwise the arch's own ``exp`` (CUDA's is fast).
+    """
+    import taichi as ti
+
+    real = ti.f64 if precision == "f64" else ti.f32
+    table_law = law_kind == "table"
+    constant_law = law_kind == "constant"
+    exp = make_exp(precision == "f64") if fast_exp else ti.exp
+
+    @ti.func
+    def alpha(s, n, p: ti.template(), table: ti.template()):
+        a = ti.cast(0.0, real)
+        if ti.static(constant_law):
+            a = p[4]  # the floor: amplitudes are zero, so the formula's value exactly
+        elif ti.static(table_law):
+            last = p[2]
+            u = ti.min(ti.max((s - p[0]) * p[1], 0.0), last)
+            v = ti.min(ti.max((n - p[0]) * p[1], 0.0), last)
+            i0 = ti.min(ti.cast(ti.floor(u), ti.i32), ti.cast(last, ti.i32) - 1)
+            j0 = ti.min(ti.cast(ti.floor(v), ti.i32), ti.cast(last, ti.i32) - 1)
+            fu = u - i0
+            fv = v - j0
+            a = ((1 - fu) * ((1 - fv) * table[i0, j0] + fv * table[i0, j0 + 1])
+                 + fu * ((1 - fv) * table[i0 + 1, j0] + fv * table[i0 + 1, j0 + 1]))
+        else:
+            a = (p[0] * exp(-ti.abs(s - n) * p[1])
+                 + p[2] * exp(-ti.sqrt(s * s + n * n) * p[3]) + p[4])
+        return a
+
+    return alpha

@@ -1,0 +1,171 @@
+"""The CPU rows of the benchmark: one configuration on one frame, timed in a
+process of its own (:func:`measure_row`), and the floor's building blocks
+measured on this machine (:func:`measure_floor`)."""
+
+import statistics
+import time
+
+import numpy as np
+
+from ..laws import donlon2018
+from ..reference import decouple_numpy
+
+__all__ = ["measure_row", "measure_floor", "SIZES", "KINDS", "NUMPY_REPEAT_CAP",
+           "REFERENCE_MAX_SIZE"]
+
+SIZES = (512, 2048, 4096)
+KINDS = ("uniform", "stars")
+# repeats of the slow NumPy paths at the largest sizes (said in the output)
+NUMPY_REPEAT_CAP = {4096: 2}
+REFERENCE_MAX_SIZE = 2048
+
+
+def _vm(field):
+    with open("/proc/self/status") as f:
+        for line in f:
+            if line.startswith(field + ":"):
+                return int(line.split()[1]) * 1024
+    return 0
+
+
+def _reset_peak():
+    """Reset VmHWM to the current RSS (Linux >= 4.0); False if not possible."""
+    try:
+        with open("/proc/self/clear_refs", "w") as f:
+            f.write("5")
+        return True
+    except OSError:
+        return False
+
+
+def measure_floor(n=1 << 22, repeats=5):
+    """Measured building blocks of the floor on this machine (all cores).
+
+    - ``pair_ns``: one pair alpha of ``donlon2018`` (2 inlined exp + 1 sqrt,
+      the kernels' own :func:`ipc_taichi._kernels.make_exp`) over ``n``
+      independent pairs in a parallel Taichi loop, ns per pair (wall), f64 and
+      f32: what the alphas alone cost in scalar code (a reference point, not a
+      strict bound: the fused sweep overlaps them better than this loop does).
+    - ``stream_ns``: ``o = a + b`` over ``n`` elements (the 24 bytes per pixel
+      in f64 that an iteration must move, 12 in f32), ns per element (wall):
+      the memory floor.
+    - ``numpy_pair_ns``: the same pair alpha in NumPy (one thread, SIMD where
+      NumPy has it), ns per pair.
+    """
+    import taichi as ti
+
+    from .. import runtime
+    from .._alpha import make_alpha
+
+    def best(fn):
+        fn()
+        times = []
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            fn()
+            times.append(time.perf_counter() - t0)
+        return min(times) / n * 1e9
+
+    rng = np.random.default_rng(0)
+    a64, b64 = rng.uniform(0, 60000, n), rng.uniform(0, 60000, n)
+    law = donlon2018()
+    p64 = law.kernel_params()
+    o64, w64 = np.empty(n), np.empty(n)
+    out = {"numpy_pair_ns": best(lambda: law.alpha(a64, b64, out=o64, work=w64))}
+    for precision, dtype in (("f64", np.float64), ("f32", np.float32)):
+        runtime.init("cpu", precision)
+        real = ti.f64 if precision == "f64" else ti.f32
+        alpha = make_alpha(law.kind, precision, fast_exp=True)
+        no_table = np.zeros((2, 2), dtype)
+
+        @ti.kernel
+        def pairs(a: ti.types.ndarray(dtype=real, ndim=1),
+                  b: ti.types.ndarray(dtype=real, ndim=1),
+                  o: ti.types.ndarray(dtype=real, ndim=1),
+                  p: ti.types.ndarray(dtype=real, ndim=1),
+                  table: ti.types.ndarray(dtype=real, ndim=2)):
+            for i in range(a.shape[0]):
+                o[i] = alpha(a[i], b[i], p, table)
+
+        @ti.kernel
+        def stream(a: ti.types.ndarray(dtype=real, ndim=1),
+                   b: ti.types.ndarray(dtype=real, ndim=1),
+                   o: ti.types.ndarray(dtype=real, ndim=1)):
+            for i in range(a.shape[0]):
+                o[i] = a[i] + b[i]
+
+        a, b, o = a64.astype(dtype), b64.astype(dtype), np.empty(n, dtype)
+        p = p64.astype(dtype)
+        out[f"pair_ns_{precision}"] = best(lambda: (pairs(a, b, o, p, no_table), ti.sync()))
+        out[f"stream_ns_{precision}"] = best(lambda: (stream(a, b, o), ti.sync()))
+    return out
+
+
+def measure_row(spec):
+    """Time one configuration on one frame (runs in a subprocess of its own).
+
+    ``spec``: ``config`` (``numpy``, ``numpy-reference``, ``taichi-<arch>-<precision>``),
+    ``measured`` and ``truth`` (``.npy`` paths), ``repeats``. Returns a dict:
+    the times, iterations, error against the truth, peak memory growth, and for
+    Taichi the first call's and a warm call's time on a small frame
+    (``first_call_s``, ``warm_call_s``; ``compile_s`` is their difference, the
+    JIT's cost, not clamped: a negative value would say the measurement failed).
+    """
+    config, measured_path, truth_path, repeats = (spec["config"], spec["measured"],
+                                                  spec["truth"], spec["repeats"])
+    result = {"config": config}
+    if config.startswith("taichi"):
+        import ipc_taichi
+        from ipc_taichi import runtime
+
+        _, arch, precision = config.split("-")
+        info = runtime.init(arch, precision)
+        result["arch"] = info.arch
+
+        def run(frame):
+            out, fi = ipc_taichi.decouple(frame, arch=arch, precision=precision,
+                                          full_output=True)
+            return out, fi.iterations, fi.converged
+
+        small = np.load(measured_path, mmap_mode="r")[:64, :64].copy()
+        t0 = time.perf_counter()
+        run(small)
+        first = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        run(small)
+        warm = time.perf_counter() - t0
+        result.update(first_call_s=first, warm_call_s=warm, compile_s=first - warm)
+        from ipc_taichi import _engine
+
+        # the timed runs allocate their working buffers (reused from run to
+        # run): the peak memory below includes them
+        _engine.clear_workspaces()
+    elif config == "numpy":
+        def run(frame):
+            return decouple_numpy(frame)
+    else:
+        from ..reference import decouple_reference
+
+        def run(frame):
+            out, it, conv, _ = decouple_reference(frame)
+            return out, it, conv
+    base_rss = _vm("VmRSS")  # after imports and the JIT
+    measured = np.load(measured_path)
+    truth = np.load(truth_path, mmap_mode="r")
+    exact_peak = _reset_peak()
+    times = []
+    out = None
+    for _ in range(repeats):
+        out = None  # release the previous result before the next run
+        t0 = time.perf_counter()
+        out, iterations, converged = run(measured)
+        times.append(time.perf_counter() - t0)
+    # without the reset (old kernels) VmHWM is the process's lifetime peak:
+    # peak_exact says which
+    peak = _vm("VmHWM")
+    result.update(
+        times_s=times, median_s=statistics.median(times), repeats=repeats,
+        iterations=int(iterations), converged=bool(converged),
+        max_error=float(np.abs(np.asarray(out, dtype=np.float64) - truth).max()),
+        peak_bytes=int(peak - base_rss), peak_exact=exact_peak)
+    return result

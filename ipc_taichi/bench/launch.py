@@ -1,0 +1,224 @@
+"""Running the benchmark: every measurement in a fresh subprocess of its own
+(one launcher, :func:`in_subprocess`; the worker side is :func:`work`), the results
+gathered into one dict (:func:`run_benchmark`) and written atomically
+(:func:`write_results`)."""
+
+import json
+import os
+import platform
+import subprocess
+import sys
+import tempfile
+
+import numpy as np
+
+from ..datasets import star_field, uniform_frame
+from .cpu import KINDS, NUMPY_REPEAT_CAP, REFERENCE_MAX_SIZE, SIZES, measure_floor, measure_row
+from .cuda import CUDA_SIZE, STACK_FRAMES, measure_cuda
+from .pipeline import PIPELINE_SIZE, measure_pipeline_ipc
+from .render import floor_model, render_markdown
+
+__all__ = ["run_benchmark", "write_results", "machine", "in_subprocess", "work", "cuda_present"]
+
+
+def work(spec):
+    """The worker side: run the measurement ``spec`` names, return a dict."""
+    config = spec["config"]
+    if config == "floor":
+        return measure_floor()
+    if config == "cuda-suite":
+        return measure_cuda(spec["size"], spec["repeats"], spec["stack"])
+    if config == "pipeline":
+        return measure_pipeline_ipc(size=spec["size"], repeats=spec["repeats"])
+    if config == "calibrate":
+        # provided by the calibrate package when it exists (wired by its owner)
+        from ..calibrate.benchmark import measure_calibrate
+
+        return measure_calibrate()
+    return measure_row(spec)
+
+
+def in_subprocess(spec):
+    """Run ``work(spec)`` in a fresh Python process; returns ``(result, None)``
+    or ``(None, the last line of its error output)``."""
+    proc = subprocess.run(
+        [sys.executable, "-m", "ipc_taichi.bench", "--worker", json.dumps(spec)],
+        capture_output=True, text=True, env=dict(os.environ, ENABLE_TAICHI_HEADER_PRINT="False"))
+    if proc.returncode != 0:
+        return None, (proc.stderr.strip().splitlines() or ["no output"])[-1]
+    return json.loads(proc.stdout.strip().splitlines()[-1]), None
+
+
+def _has_module(name):
+    from importlib.util import find_spec
+
+    try:
+        return find_spec(name) is not None
+    except ModuleNotFoundError:
+        return False
+
+
+def machine():
+    """What the benchmark ran on."""
+    from importlib.metadata import version  # taichi's version without importing it
+
+    cpu = platform.processor() or "unknown"
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    cpu = line.split(":", 1)[1].strip()
+                    break
+    except OSError:
+        pass
+    mem = 0
+    try:
+        with open("/proc/meminfo") as f:
+            mem = int(f.readline().split()[1]) * 1024
+    except OSError:
+        pass
+    try:
+        load = os.getloadavg()
+    except OSError:
+        load = (float("nan"),) * 3
+    from .. import __version__
+
+    return {
+        "cpu": cpu, "cores": os.cpu_count(), "ram_gib": round(mem / 2**30, 1),
+        "os": f"{platform.system()} {platform.release()}", "python": platform.python_version(),
+        "numpy": np.__version__, "taichi": version("taichi"), "ipc_taichi": __version__,
+        "load_average_at_start": [round(v, 2) for v in load],
+        "cuda": cuda_present(),
+    }
+
+
+def cuda_present():
+    try:
+        import ctypes
+
+        ctypes.CDLL("libcuda.so.1")
+        return True
+    except OSError:
+        return False
+
+
+def _configs(cuda):
+    configs = ["numpy", "numpy-reference", "taichi-cpu-f64", "taichi-cpu-f32"]
+    if cuda:
+        configs += ["taichi-cuda-f64", "taichi-cuda-f32"]
+    return configs
+
+
+def _frames(size, kind, workdir):
+    from ..reference import couple_reference
+
+    truth = uniform_frame(size) if kind == "uniform" else star_field(size)
+    measured = couple_reference(truth)
+    paths = {}
+    for name, arr in (("truth", truth), ("measured", measured)):
+        paths[name] = os.path.join(workdir, f"{kind}-{size}-{name}.npy")
+        np.save(paths[name], arr)
+    return paths
+
+
+def run_benchmark(sizes=SIZES, kinds=KINDS, repeats=5, configs=None, progress=print,
+                  measure=True, cuda_size=CUDA_SIZE, stack=STACK_FRAMES,
+                  pipeline_size=PIPELINE_SIZE):
+    """Run every configuration on every frame; return the results dict.
+
+    With ``measure``, also time the floor's building blocks
+    (:func:`measure_floor`) in a subprocess of their own and, on a machine with
+    a CUDA GPU, the CUDA rows (:func:`measure_cuda`, ``cuda_size`` frames, a
+    ``stack``-frame stack) in another, and where the ``jwst`` package is
+    installed, the constant law beside the JWST ``ipc`` step on a
+    ``pipeline_size`` ramp (:func:`measure_pipeline_ipc`; 0 skips it).
+    """
+    info = machine()
+    configs = list(configs or _configs(info["cuda"]))
+    notes = []
+    if not info["cuda"]:
+        notes.append("No CUDA GPU on this machine: the Taichi CUDA rows and the CUDA section "
+                     "(device-resident, host in/out, stack, CuPy peer, device floor) were not run.")
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="ipc-bench-") as workdir:
+        for size in sizes:
+            for kind in kinds:
+                paths = _frames(size, kind, workdir)
+                for config in configs:
+                    n = repeats
+                    if config.startswith("numpy"):
+                        if config == "numpy-reference" and size > REFERENCE_MAX_SIZE:
+                            continue
+                        n = min(repeats, NUMPY_REPEAT_CAP.get(size, repeats))
+                    spec = {"config": config, "measured": paths["measured"],
+                            "truth": paths["truth"], "repeats": n}
+                    row, tail = in_subprocess(spec)
+                    if row is None:
+                        progress(f"  {config:16s} {kind:8s} {size:5d}: FAILED ({tail})")
+                        rows.append({"config": config, "size": size, "kind": kind,
+                                     "error": tail})
+                        continue
+                    row.update(size=size, kind=kind, frame_bytes=size * size * 8)
+                    rows.append(row)
+                    progress(f"  {config:16s} {kind:8s} {size:5d}: median {row['median_s']:.3f} s "
+                             f"of {row['repeats']}, {row['iterations']} it, "
+                             f"max err {row['max_error']:.3g}")
+    for size in sizes:
+        capped = NUMPY_REPEAT_CAP.get(size)
+        if capped is not None and capped < repeats:
+            notes.append(f"NumPy at {size}x{size}: {capped} repeats instead of {repeats} "
+                         "(it is slow); the median is of those.")
+    if any(s > REFERENCE_MAX_SIZE for s in sizes):
+        notes.append(f"numpy-reference (the paper-faithful one) is run up to "
+                     f"{REFERENCE_MAX_SIZE}x{REFERENCE_MAX_SIZE} only.")
+    _add_ratios(rows)
+    floor = floor_model(info)
+    if measure:
+        floor["measured"], failed = in_subprocess({"config": "floor"})
+        if failed:
+            notes.append(f"The floor measurement failed: {failed}")
+    pipeline = None
+    if measure and pipeline_size:
+        if _has_module("jwst"):
+            progress(f"  constant law beside the JWST ipc step, {pipeline_size}x{pipeline_size}")
+            pipeline, failed = in_subprocess({"config": "pipeline", "size": pipeline_size,
+                                       "repeats": 3})
+            if failed:
+                notes.append(f"The row beside the JWST ipc step failed: {failed}")
+        else:
+            notes.append("The jwst package is not installed: the row beside the JWST ipc "
+                         "step was not run (pip install 'ipc_taichi[jwst]').")
+    cuda = None
+    if measure and info["cuda"] and cuda_size:
+        progress(f"  CUDA rows at {cuda_size}x{cuda_size} (stack of {stack})")
+        cuda, failed = in_subprocess({"config": "cuda-suite", "size": cuda_size,
+                               "repeats": max(repeats, 10), "stack": stack})
+        if failed:
+            notes.append(f"The CUDA rows failed: {failed}")
+    # the calibrate row (ipc_taichi.calibrate.benchmark.measure_calibrate, wired by the
+    # calibrate package's owner) is launched here as {"config": "calibrate"} and
+    # rendered by render.render_section
+    calibrate = None
+    return {"machine": info, "repeats": repeats, "notes": notes, "rows": rows, "floor": floor,
+            "pipeline": pipeline, "calibrate": calibrate, "cuda": cuda}
+
+
+def _add_ratios(rows):
+    peer = {(r["size"], r["kind"]): r["median_s"] for r in rows
+            if r["config"] == "numpy" and "median_s" in r}
+    for r in rows:
+        key = (r.get("size"), r.get("kind"))
+        if "median_s" in r and key in peer:
+            r["speedup_vs_numpy"] = peer[key] / r["median_s"]
+
+
+def write_results(results, directory):
+    """Write results.json and RESULTS.md atomically into ``directory``."""
+    os.makedirs(directory, exist_ok=True)
+    for name, text in (("results.json", json.dumps(results, indent=1)),
+                       ("RESULTS.md", render_markdown(results))):
+        path = os.path.join(directory, name)
+        fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=name, dir=directory)
+        with os.fdopen(fd, "w") as f:
+            f.write(text)
+        os.replace(tmp, path)
