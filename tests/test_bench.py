@@ -170,3 +170,14 @@ def test_cli_refuses_a_tiny_jwst_ramp(cli, tmp_path):
     result = cli("bench", "--jwst-size", "8", "--output", tmp_path)
     assert result.returncode != 0 and "--jwst-size" in result.stderr
     assert list(tmp_path.iterdir()) == []
+
+
+def test_calibrate_row_is_measured_and_rendered():
+    from ipc_taichi.bench.launch import work
+    from ipc_taichi.bench.render import render_section
+
+    section = work({"config": "calibrate", "size": 512, "groups": 3})
+    row = section["rows"][0]
+    assert row["hot pixels found"] > 10
+    assert abs(row["alpha_x at 10 ke- (made with 0.006)"] - 0.006) < 0.0015
+    assert "512x512 x 3 groups" in render_section(section)
