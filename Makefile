@@ -50,13 +50,13 @@ docs: install
 	@echo "API reference: docs/api/_build/html/index.html"
 
 # The test suite on Python 3.12 / 3.13 (pyenv's, or PY312=/path/to/python3.12), in a venv
-# under /tmp pinned by constraints/py3XX.txt; see docs/python-versions.md.
+# under /tmp pinned by requirements-py3XX.lock (torch left out: see .ci/test-python).
 PY312 ?= $(HOME)/.pyenv/versions/3.12.1/bin/python
 PY313 ?= $(HOME)/.pyenv/versions/3.13.0/bin/python
 test-py312:
-	.ci/test-python $(PY312) constraints/py312.txt /tmp/ipc-taichi-py312
+	.ci/test-python $(PY312) requirements-py312.lock /tmp/ipc-taichi-py312
 test-py313:
-	.ci/test-python $(PY313) constraints/py313.txt /tmp/ipc-taichi-py313
+	.ci/test-python $(PY313) requirements-py313.lock /tmp/ipc-taichi-py313
 
 clean:
 	rm -rf $(VENV) build *.egg-info .pytest_cache .hypothesis docs/api/_build

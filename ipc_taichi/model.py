@@ -82,7 +82,7 @@ class CouplingModel:
 
     law: object
     geometry: Geometry
-    edge: str = "zero"
+    edge: str = DEFAULT_EDGE
 
     @classmethod
     def resolve(cls, law=None, geometry=None, edge=None, *, model=None):
