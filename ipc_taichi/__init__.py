@@ -11,11 +11,16 @@ centres. Taichi is initialised lazily on first use (see :mod:`ipc_taichi.runtime
 
 from .coupling import couple
 from .decoupling import DecoupleInfo, decouple
-from .errors import (ArchUnavailableError, ConvergenceWarning, DivergenceError,
-                     GeometryError, IPCInputError, LawError)
+from .errors import (
+    ArchUnavailableError,
+    ConvergenceWarning,
+    DivergenceError,
+    GeometryError,
+    IPCInputError,
+    LawError,
+)
 from .geometry import Geometry
-from .laws import (ParametricLaw, TabulatedLaw, constant, donlon2018, donlon2018_printed,
-                   get_law)
+from .laws import ParametricLaw, TabulatedLaw, constant, donlon2018, donlon2018_printed, get_law
 from .runtime import init
 
 __version__ = "0.1.0"

@@ -25,7 +25,7 @@ from .model import CouplingModel
 __all__ = ["couple"]
 
 
-def couple(signal, law="donlon2018", geometry=None, edge="zero", arch=None, precision=None,
+def couple(signal, law=None, geometry=None, edge=None, arch=None, precision=None,
            layout=None, *, model=None, mask=None, out=None):
     """Apply signal-dependent IPC to ``signal`` (2-D frame or 3-D stack).
 
@@ -36,20 +36,23 @@ def couple(signal, law="donlon2018", geometry=None, edge="zero", arch=None, prec
         dtype or byte order; negative values are valid; NaN/inf mark bad
         pixels. A PyTorch tensor (CPU or CUDA), or a CuPy/JAX array (through
         DLPack and PyTorch), stays on its device: see :mod:`ipc_taichi._device`.
-    law : str, float or law object
-        See :func:`ipc_taichi.laws.get_law`. Default ``"donlon2018"``.
+    law : str, float, law object or None
+        See :func:`ipc_taichi.laws.get_law`. ``None``: the paper's law
+        (``"donlon2018"``).
     geometry : Geometry, dict, str or None
-        Neighbours and weights (default: 4 nearest, weight 1).
-    edge : {"zero", "isolated"}
-        What lies beyond the frame (see module docstring).
+        Neighbours and weights (``None``: 4 nearest, weight 1).
+    edge : {"zero", "isolated"} or None
+        What lies beyond the frame (see module docstring); ``None``: ``"zero"``.
     arch, precision : str, optional
         Passed to :func:`ipc_taichi.runtime.init`.
     layout : {None, "sweep", "pixel"}
         Kernel loop layout (see :mod:`ipc_taichi._kernels`); ``None`` picks the
         one that suits the arch. Results agree to rounding.
-    model : CouplingModel, optional
-        The law, geometry and edge as one resolved value (then leave ``law``,
-        ``geometry`` and ``edge`` at their defaults).
+    model : CouplingModel, str or path-like, optional
+        The law, geometry and edge as one value, or the path of a model file
+        (:meth:`ipc_taichi.model.CouplingModel.load`); then ``law``,
+        ``geometry`` and ``edge`` must be left ``None`` (else
+        :class:`~ipc_taichi.errors.IPCInputError`).
     mask : array_like of bool, optional
         True where a pixel is not trusted (same shape as a frame or as the
         stack): it neither gives nor takes charge and keeps its input value.
@@ -75,7 +78,7 @@ def couple(signal, law="donlon2018", geometry=None, edge="zero", arch=None, prec
     (9600.0, 100.0)
     """
     frames = as_stack(signal, "signal", mask)
-    model = CouplingModel.from_arguments(law, geometry, edge, model)
+    model = CouplingModel.resolve(law, geometry, edge, model=model)
     info = start(arch, precision)
     result = run_couple(frames, model, info, layout, out=out)
     return as_result(result, frames)

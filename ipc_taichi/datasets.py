@@ -122,7 +122,8 @@ def hot_pixels(shape, n, level, background=0.0, seed=0, isolation=5):
             break
         if taken[y, x]:
             continue
-        taken[max(0, y - isolation):y + isolation + 1, max(0, x - isolation):x + isolation + 1] = True
+        taken[max(0, y - isolation):y + isolation + 1,
+              max(0, x - isolation):x + isolation + 1] = True
         placed.append((y, x))
     positions = np.array(placed, dtype=int).reshape(-1, 2)
     if np.ndim(level) == 0:

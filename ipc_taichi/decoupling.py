@@ -49,7 +49,7 @@ class DecoupleInfo:
     edge: str = ""
 
 
-def decouple(measured, law="donlon2018", geometry=None, edge="zero", max_iter=iteration.MAX_ITER,
+def decouple(measured, law=None, geometry=None, edge=None, max_iter=iteration.MAX_ITER,
              tol=iteration.TOL, arch=None, precision=None, callback=None, full_output=False,
              layout=None, *, model=None, mask=None, out=None):
     """Remove signal-dependent IPC from ``measured`` (2-D frame or 3-D stack).
@@ -63,12 +63,15 @@ def decouple(measured, law="donlon2018", geometry=None, edge="zero", max_iter=it
         PyTorch tensor (CPU or CUDA), or a CuPy/JAX array (through DLPack and
         PyTorch), is decoupled on its device and the result returned as the
         same kind on the same device: see :mod:`ipc_taichi._device`.
-    law, geometry, edge :
-        The coupling model, as for :func:`ipc_taichi.couple`.
+    law, geometry, edge : optional
+        The coupling model, as for :func:`ipc_taichi.couple` (``None``: the
+        paper's law, nearest neighbours, edge ``zero``).
     max_iter : int
-        At most this many iterations (paper: 20).
+        At most this many iterations (default :data:`ipc_taichi.iteration.MAX_ITER`,
+        the paper's 20).
     tol : float
-        Stopping rule ``max|S_q - S_{q-1}| <= tol * max|S_q|``; 0 runs exactly
+        Stopping rule ``max|S_q - S_{q-1}| <= tol * max|S_q|`` (default
+        :data:`ipc_taichi.iteration.TOL`, the paper's 1e-5); 0 runs exactly
         ``max_iter`` iterations without a warning.
     callback : callable, optional
         ``callback(q, estimate)`` after each iteration (frame by frame);
@@ -79,9 +82,11 @@ def decouple(measured, law="donlon2018", geometry=None, edge="zero", max_iter=it
     layout : {None, "sweep", "pixel"}
         Kernel loop layout (see :mod:`ipc_taichi._kernels`); ``None`` picks the
         one that suits the arch. Results agree to rounding.
-    model : CouplingModel, optional
-        The law, geometry and edge as one resolved value (then leave ``law``,
-        ``geometry`` and ``edge`` at their defaults).
+    model : CouplingModel, str or path-like, optional
+        The law, geometry and edge as one value, or the path of a model file
+        (:meth:`ipc_taichi.model.CouplingModel.load`); then ``law``,
+        ``geometry`` and ``edge`` must be left ``None`` (else
+        :class:`~ipc_taichi.errors.IPCInputError`).
     mask : array_like of bool, optional
         True where a pixel is not trusted (e.g. DQ DO_NOT_USE), shaped like a
         frame or like the stack: it neither gives nor takes charge and keeps
@@ -113,7 +118,7 @@ def decouple(measured, law="donlon2018", geometry=None, edge="zero", max_iter=it
     """
     frames = as_stack(measured, "measured", mask)
     max_iter, tol = iteration.check_arguments(max_iter, tol)
-    model = CouplingModel.from_arguments(law, geometry, edge, model)
+    model = CouplingModel.resolve(law, geometry, edge, model=model)
     info = start(arch, precision)
     infos = []
 

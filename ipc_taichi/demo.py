@@ -44,7 +44,7 @@ def run_demo(size=2048, arch=None, precision=None, out=print):
     stop = iteration.first_met(info.max_delta, info.max_signal, iteration.TOL)
     out("   iter      peak   max|error|   max|dS|")
     for q, peak, err, delta in rows:
-        mark = "  <- stopping rule (tol 1e-5) stops here" if q == stop else ""
+        mark = f"  <- stopping rule (tol {iteration.TOL:g}) stops here" if q == stop else ""
         ds = "" if q == 0 else f"{delta:9.3g}"
         out(f"   {q:4d} {peak:9.2f} {err:12.4g} {ds:>9s}{mark}")
     _, check = decouple(measured, full_output=True)

@@ -57,13 +57,16 @@ class Geometry:
                 dy, dx = (int(v) for v in offset)
                 w = float(w)
             except (TypeError, ValueError):
-                raise GeometryError(f"geometry entry {offset!r}: {w!r} is not ((dy, dx), weight)") from None
+                raise GeometryError(f"geometry entry {offset!r}: {w!r} is not "
+                                    "((dy, dx), weight)") from None
             if (dy, dx) == (0, 0):
                 raise GeometryError("geometry offset (0, 0) is the pixel itself")
             if max(abs(dy), abs(dx)) > _MAX_REACH:
-                raise GeometryError(f"geometry offset {(dy, dx)} reaches beyond {_MAX_REACH} pixels")
+                raise GeometryError(f"geometry offset {(dy, dx)} reaches beyond "
+                                    f"{_MAX_REACH} pixels")
             if not np.isfinite(w) or w < 0:
-                raise GeometryError(f"geometry weight for {(dy, dx)} must be finite and >= 0, got {w}")
+                raise GeometryError(f"geometry weight for {(dy, dx)} must be finite and >= 0, "
+                                    f"got {w}")
             if w != 0.0:
                 clean[(dy, dx)] = clean.get((dy, dx), 0.0) + w
         if not clean:

@@ -16,9 +16,10 @@ Laws
     A signal-independent coupling (fraction, e.g. ``constant:0.0125``); with
     nearest-neighbour geometry this is the classic 3x3 IPC kernel.
 :class:`ParametricLaw`
-    The family ``amp_diff exp(-|S-N|/scale_diff) + amp_level exp(-sqrt(S^2+N^2)/scale_level) + floor``
-    (fractions). All three laws above are members. Its coefficients are
-    run-time kernel arguments: changing them never recompiles a kernel.
+    The family ``amp_diff exp(-|S-N|/scale_diff) +
+    amp_level exp(-sqrt(S^2+N^2)/scale_level) + floor`` (fractions). All three
+    laws above are members. Its coefficients are run-time kernel arguments:
+    changing them never recompiles a kernel.
 :class:`TabulatedLaw`
     ``alpha`` sampled on a uniform signal grid (a 2-D table, or a user
     callable sampled onto one) and looked up bilinearly inside the kernel;
@@ -54,7 +55,8 @@ LAW_NAMES = ("donlon2018", "donlon2018_printed", "constant:<alpha>", "parametric
 
 @dataclass(frozen=True)
 class ParametricLaw:
-    """``alpha(S,N) = amp_diff*exp(-|S-N|/scale_diff) + amp_level*exp(-sqrt(S^2+N^2)/scale_level) + floor``.
+    """The parametric law: ``alpha(S,N) = amp_diff*exp(-|S-N|/scale_diff) +
+    amp_level*exp(-sqrt(S^2+N^2)/scale_level) + floor``.
 
     All values are fractions (0.0065 means 0.65 %); scales are in the signal's
     units (electrons or DN, whatever the frame holds).
@@ -292,7 +294,8 @@ def _load_table(path):
             signal = np.asarray(data["signal"], np.float64)
             alpha = np.asarray(data["alpha"], np.float64)
     except (OSError, KeyError, ValueError) as exc:
-        raise LawError(f"law table {path}: cannot read arrays 'signal' and 'alpha' ({exc})") from None
+        raise LawError(f"law table {path}: cannot read arrays 'signal' and 'alpha' "
+                       f"({exc})") from None
     if signal.ndim != 1 or signal.size < 2:
         raise LawError(f"law table {path}: 'signal' must be 1-D with >= 2 values")
     step = np.diff(signal)

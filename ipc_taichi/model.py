@@ -45,7 +45,8 @@ from .errors import IPCInputError, LawError
 from .geometry import Geometry
 from .laws import ParametricLaw, TabulatedLaw, check_convergence, get_law
 
-__all__ = ["CouplingModel", "EDGES", "MODEL_FORMAT", "MODEL_VERSION"]
+__all__ = ["CouplingModel", "EDGES", "DEFAULT_LAW", "DEFAULT_EDGE", "MODEL_FORMAT",
+           "MODEL_VERSION"]
 
 MODEL_FORMAT = "ipc_taichi.coupling_model"
 MODEL_VERSION = 1
@@ -55,6 +56,12 @@ EDGES = ("zero", "isolated")
 """Edge rules: ``zero`` = zero-signal pixels beyond the frame (they take
 charge and give none back, the paper's choice); ``isolated`` = no coupling
 across the frame edge (total charge conserved)."""
+
+DEFAULT_LAW = "donlon2018"
+"""The law when none is given: the paper's (:func:`ipc_taichi.laws.donlon2018`)."""
+
+DEFAULT_EDGE = "zero"
+"""The edge rule when none is given: the paper's."""
 
 
 @dataclass(frozen=True)
@@ -75,55 +82,70 @@ class CouplingModel:
 
     law: object
     geometry: Geometry
-    edge: str = "zero"
+    edge: str = DEFAULT_EDGE
 
     @classmethod
-    def resolve(cls, law="donlon2018", geometry=None, edge="zero"):
-        """A validated model from user-facing values.
+    def resolve(cls, law=None, geometry=None, edge=None, *, model=None):
+        """The validated model of user-facing values: the one way to build one.
+
+        Every public function that takes ``law``/``geometry``/``edge`` or
+        ``model=`` hands them here unchanged, so the defaults and the refusal
+        of both at once are written only here.
 
         Parameters
         ----------
-        law : str, float, law object or CouplingModel
-            See :func:`ipc_taichi.laws.get_law`. A :class:`CouplingModel` is
-            returned as it is (``geometry`` and ``edge`` must then be left at
-            their defaults).
+        law : str, float, law object, CouplingModel or None
+            See :func:`ipc_taichi.laws.get_law`; ``None`` is the paper's law
+            (:data:`DEFAULT_LAW`). A :class:`CouplingModel` here is taken as
+            ``model=``.
         geometry : Geometry, mapping, str or None
-            Default: the 4 nearest neighbours with weight 1.
-        edge : {"zero", "isolated"}
+            ``None``: the 4 nearest neighbours with weight 1.
+        edge : {"zero", "isolated"} or None
+            ``None``: :data:`DEFAULT_EDGE`.
+        model : CouplingModel, str or path-like, optional
+            A resolved model, or the path of a model file (:meth:`load`); then
+            ``law``, ``geometry`` and ``edge`` must be ``None``.
+
+        Returns
+        -------
+        CouplingModel
 
         Raises
         ------
-        LawError, GeometryError, IPCInputError
+        IPCInputError
+            ``model`` together with any of ``law``, ``geometry``, ``edge``; a
+            bad ``edge``; a ``model`` that is neither a model nor a path; an
+            unreadable model file.
+        LawError, GeometryError
+            A bad law or geometry, or a law too strong for the iteration to
+            converge (:func:`ipc_taichi.laws.check_convergence`).
         """
         if isinstance(law, cls):
-            if geometry is not None or edge != "zero":
-                raise IPCInputError("give either a CouplingModel or law/geometry/edge, not both")
-            return law
-        law = get_law(law)
+            if model is not None:
+                raise IPCInputError("give the coupling model once (law= or model=), not both")
+            law, model = None, law
+        if model is not None:
+            given = [name for name, value in (("law", law), ("geometry", geometry), ("edge", edge))
+                     if value is not None]
+            if given:
+                raise IPCInputError(f"give either model= or law/geometry/edge, not both "
+                                    f"(got model= and {', '.join(given)}=)")
+            if isinstance(model, (str, os.PathLike)):
+                return cls.load(model)
+            if not isinstance(model, cls):
+                raise IPCInputError(f"model must be a CouplingModel or a model file path, got "
+                                    f"{type(model).__name__}")
+            return model
+        law = get_law(DEFAULT_LAW if law is None else law)
         if geometry is None:
             geometry = Geometry.nearest()
         elif not isinstance(geometry, Geometry):
             geometry = Geometry.parse(geometry) if isinstance(geometry, str) else Geometry(geometry)
+        edge = DEFAULT_EDGE if edge is None else edge
         if edge not in EDGES:
             raise IPCInputError(f"edge must be one of {', '.join(EDGES)}, got {edge!r}")
         check_convergence(law, geometry)
         return cls(law, geometry, edge)
-
-    @classmethod
-    def from_arguments(cls, law="donlon2018", geometry=None, edge="zero", model=None):
-        """The model of a public function's ``law``/``geometry``/``edge`` or
-        ``model=`` arguments (not both)."""
-        if model is None:
-            return cls.resolve(law, geometry, edge)
-        if isinstance(model, (str, os.PathLike)):
-            model = cls.load(model)
-        if not isinstance(model, cls):
-            raise IPCInputError(f"model must be a CouplingModel or a model file path, got "
-                                f"{type(model).__name__}")
-        if not (isinstance(law, str) and law == "donlon2018") or geometry is not None \
-                or edge != "zero":
-            raise IPCInputError("give either model= or law/geometry/edge, not both")
-        return model
 
     @property
     def reach(self):
@@ -190,7 +212,7 @@ class CouplingModel:
                                    np.asarray(law_doc["table"], dtype=np.float64),
                                    name=str(law_doc.get("name", "table")))
             geometry = Geometry({(int(dy), int(dx)): float(w) for dy, dx, w in doc["geometry"]})
-            return cls.resolve(law, geometry, doc.get("edge", "zero"))
+            return cls.resolve(law, geometry, doc.get("edge", DEFAULT_EDGE))
         except (KeyError, TypeError, ValueError) as exc:
             raise bad(f"{type(exc).__name__}: {exc}" if not isinstance(exc, ValueError)
                       else str(exc)) from None

@@ -17,20 +17,23 @@ a parametric law), pair-symmetric and in place.
 import numpy as np
 
 from . import iteration
-from .geometry import Geometry
-from .laws import donlon2018, get_law
+from .laws import donlon2018
+from .model import CouplingModel
 
 __all__ = ["couple_reference", "decouple_reference", "flow_reference", "decouple_numpy"]
 
 
-def flow_reference(signal, law="donlon2018", geometry=None, edge="zero"):
+def flow_reference(signal, law=None, geometry=None, edge=None, *, model=None):
     """Net charge each pixel gains by coupling: ``couple(S) - S`` (2-D, float64).
 
+    ``law``, ``geometry``, ``edge`` and ``model`` as for :func:`ipc_taichi.couple`.
     Non-finite pixels are bad: excluded from coupling, NaN in the result.
     """
-    law = get_law(law)
-    geometry = geometry if isinstance(geometry, Geometry) else (
-        Geometry.nearest() if geometry is None else Geometry(geometry))
+    return _flow(signal, CouplingModel.resolve(law, geometry, edge, model=model))
+
+
+def _flow(signal, model):
+    law, geometry, edge = model.law, model.geometry, model.edge
     s = np.asarray(signal, dtype=np.float64)
     valid = np.isfinite(s)
     r = geometry.reach
@@ -54,25 +57,27 @@ def flow_reference(signal, law="donlon2018", geometry=None, edge="zero"):
     return out
 
 
-def couple_reference(signal, law="donlon2018", geometry=None, edge="zero"):
-    """Reference forward model for one 2-D frame (float64)."""
+def couple_reference(signal, law=None, geometry=None, edge=None, *, model=None):
+    """Reference forward model for one 2-D frame (float64); arguments as for
+    :func:`flow_reference`."""
     s = np.asarray(signal, dtype=np.float64)
-    return s + flow_reference(s, law, geometry, edge)
+    return s + flow_reference(s, law, geometry, edge, model=model)
 
 
-def decouple_reference(measured, law="donlon2018", geometry=None, edge="zero", max_iter=20,
-                       tol=1e-5):
+def decouple_reference(measured, law=None, geometry=None, edge=None,
+                       max_iter=iteration.MAX_ITER, tol=iteration.TOL, *, model=None):
     """Reference Jacobi decoupler for one 2-D frame.
 
     Returns ``(signal, iterations, converged, max_delta)`` with the same
     stopping rule as :func:`ipc_taichi.decouple`.
     """
+    model = CouplingModel.resolve(law, geometry, edge, model=model)
     m = np.asarray(measured, dtype=np.float64)
     prev = m.copy()
     deltas = []
     converged = False
-    for q in range(1, int(max_iter) + 1):
-        nxt = m - flow_reference(prev, law, geometry, edge)
+    for _ in range(int(max_iter)):
+        nxt = m - _flow(prev, model)
         dmax = np.nanmax(np.abs(nxt - prev)) if np.isfinite(nxt).any() else 0.0
         smax = np.nanmax(np.abs(nxt)) if np.isfinite(nxt).any() else 0.0
         deltas.append(float(dmax))
@@ -80,7 +85,7 @@ def decouple_reference(measured, law="donlon2018", geometry=None, edge="zero", m
         if tol > 0 and dmax <= tol * smax:
             converged = True
             break
-    return prev, q, converged, deltas
+    return prev, len(deltas), converged, deltas
 
 
 def decouple_numpy(measured, law=None, max_iter=iteration.MAX_ITER, tol=iteration.TOL):
@@ -108,7 +113,7 @@ def decouple_numpy(measured, law=None, max_iter=iteration.MAX_ITER, tol=iteratio
     delta = np.empty_like(m)
     converged = False
     q = 0
-    for q in range(1, int(max_iter) + 1):
+    for q in range(1, int(max_iter) + 1):  # noqa: B007 (q, the count, is returned)
         flow = nxt  # reuse: nxt holds the flow until the update below
         flow[...] = 0.0
         for name, a, b in (("h", padded[1:-1, :-1], padded[1:-1, 1:]),

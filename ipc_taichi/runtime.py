@@ -23,6 +23,8 @@ import logging
 import os
 from dataclasses import dataclass
 
+import numpy as np
+
 from .errors import ArchUnavailableError
 
 __all__ = ["RuntimeInfo", "init", "current", "ARCH_ENV", "PRECISION_ENV"]
@@ -56,8 +58,6 @@ class RuntimeInfo:
     @property
     def dtype(self):
         """NumPy dtype matching ``precision``."""
-        import numpy as np
-
         return np.float64 if self.precision == "f64" else np.float32
 
 
@@ -116,7 +116,9 @@ def init(arch=None, precision=None):
         return _current
 
     # Taichi prints a banner to stdout on import and logs its CUDA probe at
-    # warning level; our own notice below says what matters.
+    # warning level; our own notice below says what matters. Hence the import
+    # here, after the environment that quiets it is set (and importing
+    # ipc_taichi stays free of Taichi's start-up cost).
     os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "False")
     os.environ.setdefault("TI_LOG_LEVEL", "error")
     import taichi as ti

@@ -34,10 +34,12 @@ workers (``mapper``, :mod:`ipc_taichi.cluster`). This module holds arrays only.
 """
 
 import math
+import sys
 
 import numpy as np
+from tqdm import tqdm
 
-from . import iteration
+from . import iteration, runtime
 from .decoupling import DecoupleInfo, decouple
 from .errors import IPCInputError
 from .model import CouplingModel
@@ -121,7 +123,7 @@ def decouple_blocks(read, write, shape, tile, model, max_iter=iteration.MAX_ITER
     :mod:`ipc_taichi.cluster` runs them on Dask workers, ``read`` unused).
     Does not warn when the rule was not met (callers do, once per frame).
     """
-    model = CouplingModel.resolve(model)
+    model = CouplingModel.resolve(model=model)
     max_iter, tol = iteration.check_arguments(max_iter, tol)
     core_tiles = list(tiles(shape, tile))
     rounds = [max_iter] if tol == 0 else sorted(
@@ -149,8 +151,6 @@ def decouple_blocks(read, write, shape, tile, model, max_iter=iteration.MAX_ITER
     finally:
         if bar is not None:
             bar.close()
-    from . import runtime
-
     rt = runtime.current()  # None where only workers ran Taichi
     info.arch = rt.arch if rt else (arch or "")
     info.precision = rt.precision if rt else (precision or "")
@@ -182,16 +182,12 @@ def _round(read, write, shape, core_tiles, n, model, tol, arch, precision, bar, 
 
 def _progress_bar(progress, total):
     """A tqdm bar on stderr when asked for and stderr is a terminal."""
-    import sys
-
     if not progress or total <= 1 or not sys.stderr.isatty():
         return None
-    from tqdm import tqdm
-
     return tqdm(total=total, unit="tile", desc="decouple", file=sys.stderr, leave=False)
 
 
-def decouple_tiled(measured, tile=512, law="donlon2018", geometry=None, edge="zero",
+def decouple_tiled(measured, tile=512, law=None, geometry=None, edge=None,
                    max_iter=iteration.MAX_ITER, tol=iteration.TOL, arch=None, precision=None,
                    full_output=False, progress=False, *, model=None, mask=None):
     """Decouple a 2-D frame tile by tile; equal to :func:`ipc_taichi.decouple`.
@@ -224,7 +220,7 @@ def decouple_tiled(measured, tile=512, law="donlon2018", geometry=None, edge="ze
                             f"{frame.shape}")
     if mask is not None:
         mask = np.broadcast_to(np.asarray(mask, dtype=bool), frame.shape)
-    model = CouplingModel.from_arguments(law, geometry, edge, model)
+    model = CouplingModel.resolve(law, geometry, edge, model=model)
     out = np.empty(frame.shape, dtype=np.float64)
 
     def read(window):
@@ -233,7 +229,8 @@ def decouple_tiled(measured, tile=512, law="donlon2018", geometry=None, edge="ze
     def write(core, values):
         out[core] = values
 
+    read_mask = None if mask is None else mask.__getitem__
     info = decouple_blocks(read, write, frame.shape, tile, model, max_iter, tol, arch,
-                           precision, progress, read_mask=None if mask is None else mask.__getitem__)
+                           precision, progress, read_mask=read_mask)
     iteration.warn_unconverged(info, max_iter, tol)
     return (out, info) if full_output else out

@@ -1,9 +1,15 @@
 """Tests run Taichi on the CPU arch in f64 unless marked ``gpu``."""
 
+import ctypes
 import os
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
+
+import ipc_taichi
+from ipc_taichi.cli import main
+from ipc_taichi.datasets import worked_example
 
 os.environ.setdefault("IPC_TAICHI_ARCH", "cpu")
 os.environ.setdefault("IPC_TAICHI_PRECISION", "f64")
@@ -11,8 +17,6 @@ os.environ.setdefault("IPC_TAICHI_PRECISION", "f64")
 
 def cuda_available():
     try:
-        import ctypes
-
         ctypes.CDLL("libcuda.so.1")
         return True
     except OSError:
@@ -32,10 +36,6 @@ def pytest_collection_modifyitems(config, items):
 def cli(capsys):
     """``ipc-taichi ARGS`` in this process (Taichi starts once per test
     process): returns ``returncode``, ``stdout``, ``stderr``."""
-    from types import SimpleNamespace
-
-    from ipc_taichi.cli import main
-
     def run(*args):
         try:
             code = main([str(a) for a in args])
@@ -50,8 +50,6 @@ def cli(capsys):
 @pytest.fixture
 def cpu():
     """The CPU/f64 runtime the tests assume."""
-    import ipc_taichi
-
     return ipc_taichi.init("cpu", "f64")
 
 
@@ -62,14 +60,13 @@ def rng():
 
 @pytest.fixture
 def worked_truth():
-    from ipc_taichi.datasets import worked_example
-
     return worked_example()
 
 
 @pytest.fixture(scope="session")
 def psf():
-    """The JWST-like F405N optical PSF of the analysis studies (poppy)."""
+    """The JWST-like F405N optical PSF of the analysis studies (poppy, imported
+    only by the tests that need it)."""
     from analysis.psf import optical_psf
 
     return optical_psf()

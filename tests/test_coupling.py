@@ -4,6 +4,7 @@ from scipy import ndimage
 
 import ipc_taichi
 from ipc_taichi import Geometry, GeometryError, IPCInputError
+from ipc_taichi.reference import couple_reference
 
 
 @pytest.mark.parametrize("alpha", [0.005, 0.0125, 0.08])
@@ -70,7 +71,6 @@ def test_bad_pixels_do_not_spread(cpu, rng):
     assert np.all(np.isnan(measured[bad]))
     assert np.all(np.isfinite(measured[~bad]))
     # bad pixels neither give nor take: same as isolating them
-    from ipc_taichi.reference import couple_reference
     np.testing.assert_allclose(measured, couple_reference(signal), rtol=1e-12, equal_nan=True)
     decoupled = ipc_taichi.decouple(measured)
     assert np.array_equal(np.isnan(decoupled), bad)
@@ -104,7 +104,6 @@ def test_integer_and_big_endian_input(cpu, rng):
 
 def test_negative_signal_is_valid(cpu, rng):
     signal = rng.normal(0, 200, (20, 20))  # bias-subtracted noise around zero
-    from ipc_taichi.reference import couple_reference
     measured = ipc_taichi.couple(signal)
     np.testing.assert_allclose(measured, couple_reference(signal), rtol=1e-12, atol=1e-9)
     assert np.abs(ipc_taichi.decouple(measured) - signal).max() < 1e-3

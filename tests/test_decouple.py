@@ -5,6 +5,7 @@ import pytest
 
 import ipc_taichi
 from ipc_taichi import ConvergenceWarning, DivergenceError, IPCInputError, LawError
+from ipc_taichi._kernels import KernelConfig, get_step_kernel
 
 
 def test_random_frame_recovered(cpu):
@@ -17,7 +18,8 @@ def test_random_frame_recovered(cpu):
     assert np.abs(signal - truth).max() < 0.05
 
 
-@pytest.mark.parametrize("law", ["donlon2018_printed", "constant:0.08", "parametric:0.01,5000,0.005,30000,0.02"])
+@pytest.mark.parametrize("law", ["donlon2018_printed", "constant:0.08",
+                                 "parametric:0.01,5000,0.005,30000,0.02"])
 def test_other_laws_and_geometries_round_trip(cpu, law):
     truth = np.random.default_rng(3).uniform(0, 60000, (64, 64))
     g = ipc_taichi.Geometry.terms(horizontal=1.1, vertical=0.9, diagonal=0.1, second=0.03)
@@ -65,8 +67,6 @@ def test_argument_validation(cpu):
 
 
 def test_changing_coefficients_does_not_recompile(cpu, rng):
-    from ipc_taichi._kernels import KernelConfig, get_step_kernel
-
     signal = rng.uniform(0, 60000, (16, 16))
     ipc_taichi.decouple(ipc_taichi.couple(signal, law="donlon2018"), law="donlon2018")
     kernels_before = get_step_kernel.cache_info().currsize
@@ -89,8 +89,5 @@ def test_changing_coefficients_does_not_recompile(cpu, rng):
 
 
 def _live_kernels():
-    from ipc_taichi._kernels import get_step_kernel
-
     # the lru_cache keeps the kernels it built; reach them through a known config
-    from ipc_taichi._kernels import KernelConfig
     return [get_step_kernel(KernelConfig(((0, 1), (1, 0)), "parametric", "zero", False, "f64"))]

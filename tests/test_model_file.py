@@ -9,7 +9,9 @@ from astropy.io import fits
 from ipc_taichi import IPCInputError, couple, decouple
 from ipc_taichi.geometry import Geometry
 from ipc_taichi.laws import TabulatedLaw, constant, donlon2018
-from ipc_taichi.model import CouplingModel
+from ipc_taichi.model import DEFAULT_EDGE, DEFAULT_LAW, CouplingModel
+from ipc_taichi.reference import couple_reference, decouple_reference
+from ipc_taichi.tiling import decouple_tiled
 
 
 def _anisotropic():
@@ -79,10 +81,64 @@ def test_cli_model_option(cli, tmp_path):
     truth = np.random.default_rng(2).uniform(0, 5e4, (16, 16))
     src = tmp_path / "in.fits"
     fits.PrimaryHDU(couple(truth, model=model)).writeto(src)
-    assert cli("decouple", str(src), str(tmp_path / "out.fits"), "--model", str(mpath)).returncode == 0
+    run = cli("decouple", str(src), str(tmp_path / "out.fits"), "--model", str(mpath))
+    assert run.returncode == 0
     out = fits.getdata(tmp_path / "out.fits")
     np.testing.assert_allclose(out, truth, rtol=0, atol=1e-6 * truth.max())
     # the model file and --law together are refused before any work
     assert cli("decouple", str(src), str(tmp_path / "o2.fits"), "--model", str(mpath),
                "--law", "constant:0.01").returncode == 2
     assert not (tmp_path / "o2.fits").exists()
+
+
+# ---- one way to resolve a model: CouplingModel.resolve, used by every entry point ----
+
+_ENTRY_POINTS = {
+    "couple": lambda frame, **kw: couple(frame, **kw),
+    "decouple": lambda frame, **kw: decouple(frame, **kw),
+    "decouple_tiled": lambda frame, **kw: decouple_tiled(frame, tile=8, **kw),
+    "couple_reference": lambda frame, **kw: couple_reference(frame, **kw),
+    "decouple_reference": lambda frame, **kw: decouple_reference(frame, **kw)[0],
+}
+
+
+@pytest.mark.parametrize("entry", sorted(_ENTRY_POINTS))
+@pytest.mark.parametrize("extra", [{"law": "donlon2018"}, {"law": "constant:0.01"},
+                                   {"geometry": "horizontal=1"}, {"edge": "zero"},
+                                   {"edge": "isolated"}])
+def test_model_with_law_geometry_or_edge_is_refused_everywhere(cpu, tmp_path, entry, extra):
+    """Even the paper's law or edge, given beside ``model=``, is refused: the
+    caller meant one of the two and we cannot know which."""
+    model = _anisotropic()
+    frame = np.full((12, 12), 1000.0)
+    for given in (model, model.save(tmp_path / "m.json")):
+        with pytest.raises(IPCInputError, match="not both") as err:
+            _ENTRY_POINTS[entry](frame, model=given, **extra)
+        assert f"{next(iter(extra))}=" in str(err.value)
+
+
+@pytest.mark.parametrize("entry", sorted(_ENTRY_POINTS))
+def test_every_entry_point_takes_a_model_or_its_path(cpu, tmp_path, entry):
+    model = _anisotropic()
+    path = model.save(tmp_path / "m.json")
+    frame = np.random.default_rng(5).uniform(0, 5e4, (20, 18))
+    run = _ENTRY_POINTS[entry]
+    by_model, by_path = run(frame, model=model), run(frame, model=str(path))
+    by_values = run(frame, law=model.law, geometry=model.geometry, edge=model.edge)
+    np.testing.assert_array_equal(by_model, by_path)
+    np.testing.assert_array_equal(by_model, by_values)
+    # the anisotropic isolated model is not the default: the answer must differ
+    assert not np.array_equal(by_model, run(frame))
+
+
+def test_resolve_defaults_are_the_papers():
+    default = CouplingModel.resolve()
+    assert default.law == donlon2018()
+    assert default.geometry.weights == Geometry.nearest().weights
+    assert (default.edge, DEFAULT_EDGE, DEFAULT_LAW) == ("zero", "zero", "donlon2018")
+    model = _anisotropic()
+    assert CouplingModel.resolve(model) is model  # a model given as the law is the model
+    with pytest.raises(IPCInputError, match="once"):
+        CouplingModel.resolve(model, model=model)
+    with pytest.raises(IPCInputError, match="CouplingModel or a model file path"):
+        CouplingModel.resolve(model=3.5)

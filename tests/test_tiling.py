@@ -5,7 +5,9 @@ import pytest
 
 import ipc_taichi
 from ipc_taichi.datasets import star_field
-from ipc_taichi.tiling import decouple_tiled, halo_for, tiles
+from ipc_taichi.model import CouplingModel
+from ipc_taichi.reference import couple_reference, decouple_reference
+from ipc_taichi.tiling import decouple_tiled, halo_for, tile_maxima, tiles
 
 
 @pytest.fixture(scope="module")
@@ -31,9 +33,6 @@ def test_tiled_equals_whole_frame_with_stopping_rule(cpu, star_frame, tile):
 
 def test_halo_matters(cpu, star_frame):
     """Without the halo the seams are wrong: the test above can fail."""
-    from ipc_taichi.model import CouplingModel
-    from ipc_taichi.tiling import tile_maxima
-
     measured = np.nan_to_num(ipc_taichi.couple(star_frame))
     whole = ipc_taichi.decouple(measured, max_iter=4, tol=0)
     model = CouplingModel.resolve("donlon2018")
@@ -82,8 +81,6 @@ def test_masked_and_all_nan_tiles_equal_whole_frame(cpu, star_frame):
 def test_cuda_layout_runs_on_cpu_and_agrees(cpu, star_frame, edge):
     """The per-pixel layout CUDA uses, run on the CPU, agrees with the CPU sweep
     and the NumPy reference (so the GPU path is tested without a GPU)."""
-    from ipc_taichi.reference import couple_reference, decouple_reference
-
     g = ipc_taichi.Geometry.terms(horizontal=1.0, vertical=0.8, diagonal=0.1, second=0.02)
     truth = star_frame[:70, :90]
     ref = couple_reference(truth, geometry=g, edge=edge)

@@ -9,14 +9,10 @@ any work.
 
 from .. import iteration
 from ..errors import IPCInputError
-from ..model import EDGES, CouplingModel
+from ..model import DEFAULT_LAW, EDGES, CouplingModel
 
 __all__ = ["add_model_arguments", "add_iteration_arguments", "add_runtime_arguments",
            "add_quiet_argument", "model_from_args", "model_is_explicit", "DEFAULT_LAW"]
-
-DEFAULT_LAW = "donlon2018"
-"""The law when neither ``--law`` nor ``--model`` is given (the paper's)."""
-
 
 def add_model_arguments(parser):
     """``--law``, ``--geometry``, ``--edge`` or ``--model FILE``: the coupling model."""
@@ -88,5 +84,4 @@ def model_from_args(args):
         if given:
             raise IPCInputError(f"--model {args.model} holds the law, geometry and edge; "
                                 f"do not also give {', '.join(given)}")
-        return CouplingModel.load(args.model)
-    return CouplingModel.resolve(args.law or DEFAULT_LAW, args.geometry, args.edge or "zero")
+    return CouplingModel.resolve(args.law, args.geometry, args.edge, model=args.model)
