@@ -220,8 +220,8 @@ def _tile_job(core, frame, shape, halo, n, model, arch, precision):
                        precision)
 
 
-def decouple_mosaic(measured, client, chunk=1024, law="donlon2018", geometry=None,
-                    edge="zero", max_iter=iteration.MAX_ITER, tol=iteration.TOL, arch=None,
+def decouple_mosaic(measured, client, chunk=1024, law=None, geometry=None,
+                    edge=None, max_iter=iteration.MAX_ITER, tol=iteration.TOL, arch=None,
                     precision=None, full_output=False, *, model=None):
     """Decouple one large frame across the workers; equal to :func:`ipc_taichi.decouple`.
 
@@ -238,7 +238,7 @@ def decouple_mosaic(measured, client, chunk=1024, law="donlon2018", geometry=Non
     if frame.ndim != 2:
         raise IPCInputError(f"decouple_mosaic: expected a 2-D frame, got shape {frame.shape}")
     # law= with model= is refused, as ipc_taichi.decouple refuses it
-    model = CouplingModel.from_arguments(law, geometry, edge, model=model)
+    model = CouplingModel.resolve(law, geometry, edge, model=model)
     shared = client.scatter(frame, broadcast=False)
 
     def mapper(n, halo, cores):

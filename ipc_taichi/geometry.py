@@ -114,7 +114,10 @@ class Geometry:
 
     @classmethod
     def parse(cls, text):
-        """From ``"horizontal=1,vertical=0.9,diagonal=0.1,second=0"`` (CLI form)."""
+        """From ``"horizontal=1,vertical=0.9,diagonal=0.1,second=0"`` (CLI form).
+
+        Terms not named are zero: ``"vertical=1"`` couples along columns only
+        (``"nearest"`` or an empty text is the paper's 4 neighbours)."""
         if text is None or not str(text).strip() or str(text).strip() == "nearest":
             return cls.nearest()
         kwargs = {}
@@ -130,6 +133,8 @@ class Geometry:
                 kwargs[key] = float(value)
             except ValueError:
                 raise GeometryError(f"geometry term {part!r}: {value!r} is not a number") from None
+        kwargs.setdefault("horizontal", 0.0)
+        kwargs.setdefault("vertical", 0.0)
         return cls.terms(**kwargs)
 
     def weight(self, dy, dx):

@@ -130,3 +130,12 @@ def test_bad_model_arguments(cpu):
         Geometry.terms(diagonal=-0.1)
     with pytest.raises(GeometryError, match="NAME=VALUE"):
         Geometry.parse("diag=0.1")
+
+
+def test_geometry_terms_not_named_are_zero():
+    # '--geometry vertical=1' used to keep horizontal=1 silently
+    g = Geometry.parse("vertical=1")
+    assert g.weight(1, 0) == 1.0 and g.weight(-1, 0) == 1.0
+    assert g.weight(0, 1) == 0.0 and g.weight(0, -1) == 0.0
+    assert Geometry.parse("horizontal=1,vertical=0.9").weight(1, 0) == 0.9
+    assert Geometry.parse("nearest") == Geometry.nearest()

@@ -30,7 +30,8 @@ def add_model_arguments(parser):
                         "table:FILE.npz (arrays 'signal', 'alpha')")
     g.add_argument("--geometry", default=None,
                    help="neighbour weights multiplying alpha, e.g. "
-                        "'horizontal=1,vertical=0.9,diagonal=0.1,second=0.02' (default: nearest, "
+                        "'horizontal=1,vertical=0.9,diagonal=0.1,second=0.02'; terms not named "
+                        "are zero (default: nearest, "
                         "4 neighbours with weight 1)")
     g.add_argument("--edge", choices=EDGES, default=None,
                    help="beyond the frame: 'zero' = zero-signal pixels that take charge "

@@ -37,6 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .. import iteration
 from ..errors import ConvergenceWarning, DivergenceError, IPCInputError
 from ..interrupts import check_stop
 from .missions import DEFAULT_DQ, JWST_DQ_FLAGS, REFERENCE_PIXEL
@@ -345,7 +346,7 @@ class named:
 
 
 def correct_frames(data, operation, model, *, mask=None, region=None, scale=1.0,
-                   out=None, max_iter=20, tol=1e-5, arch=None, precision=None, label="data",
+                   out=None, max_iter=iteration.MAX_ITER, tol=iteration.TOL, arch=None, precision=None, label="data",
                    pedestal=None):
     """Couple or decouple every 2-D frame of ``data`` by the product rules.
 

@@ -43,7 +43,7 @@ try:
 except ImportError as exc:  # the optional extra is not installed
     raise ImportError("the JWST step needs jwst: pip install 'ipc_taichi[jwst]'") from exc
 
-from .. import __version__
+from .. import __version__, iteration
 from ..model import CouplingModel
 from . import conventions as cv
 from . import missions
@@ -54,7 +54,8 @@ log = logging.getLogger(__name__)
 
 
 def correct_ramp(ramp, coupling, gain, superbias=None, dq_bits=None, refpix=None,
-                 max_iter=20, tol=1e-5, arch=None, precision=None, saturation=None):
+                 max_iter=iteration.MAX_ITER, tol=iteration.TOL, arch=None, precision=None,
+                 saturation=None):
     """Decouple a ``RampModel`` in place, group by group; returns the infos.
 
     Parameters
@@ -114,7 +115,7 @@ class IPCTaichiStep(Step):
 
     class_alias = "ipc_taichi"
 
-    spec = """
+    spec = f"""
         model = string(default=None)  # coupling-model file (JSON, from ipc-taichi calibrate)
         law = string(default=None)  # coupling law alpha(S,N), in electrons (or model=)
         geometry = string(default=None)  # neighbour weights, e.g. horizontal=1,vertical=0.9
@@ -124,8 +125,8 @@ class IPCTaichiStep(Step):
         dq_bits = string(default='DO_NOT_USE,SATURATED')  # flags of pixels left out
         saturation = float(default=None)  # DN at or above which a pixel is left out
         refpix = integer(default=None)  # reference border; default: REFERENCE_PIXEL flags
-        max_iter = integer(default=20)  # at most this many Jacobi iterations
-        tol = float(default=1e-5)  # stop when max|dS| <= tol * max|S|
+        max_iter = integer(default={iteration.MAX_ITER})  # at most this many Jacobi iterations
+        tol = float(default={iteration.TOL!r})  # stop when max|dS| <= tol * max|S|
         arch = string(default=None)  # Taichi arch: auto, cpu, cuda
         precision = string(default=None)  # f64 or f32
     """

@@ -115,6 +115,6 @@ def resolve_model(model, options):
     from ..model import CouplingModel
 
     if model is None:
-        return CouplingModel.resolve("donlon2018"), options.replace(model_chosen=False,
+        return CouplingModel.resolve(), options.replace(model_chosen=False,
                                                                     edge_chosen=False)
-    return CouplingModel.from_arguments(model=model), options
+    return CouplingModel.resolve(model=model), options
