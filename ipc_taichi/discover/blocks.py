@@ -14,6 +14,7 @@ import numpy as np
 
 from ..errors import IPCInputError
 from .diagnostics import fill_scene, gap, residual, residual_vs_signal, valid_mask
+from .sampling import block_sum
 
 __all__ = ["PairBlocks", "deviance"]
 
@@ -47,34 +48,53 @@ def deviance(residuals, variances, scales, valids, response_variance):
 
 @dataclass
 class PairBlocks:
-    """Prepared data: same-shape pairs stacked into 3-D blocks."""
+    """Prepared data: pairs of one shape and one SCENE sampling stacked into
+    3-D blocks.
+
+    ``scenes`` holds the pixels' totals (what the diagnostics look at),
+    ``sources`` what the model is given: the sub-pixel SCENE where the file
+    has one (``oversample`` > 1), else the same array as ``scenes``.
+    """
 
     scenes: list
     measured: list
     valid: list
     n: int
+    sources: list = None
+    oversample: list = None
+
+    def __post_init__(self):
+        if self.sources is None:
+            self.sources = list(self.scenes)
+        if self.oversample is None:
+            self.oversample = [1] * len(self.scenes)
 
     @classmethod
     def from_lab(cls, lab):
         groups = {}
-        for ver, scene, measured in lab.pairs:
-            valid = valid_mask(scene, measured)
+        for (ver, scene, measured), n in zip(lab.pairs, lab.oversample):
+            # a NaN sub-pixel makes its pixel's total NaN: a bad scene pixel
+            total = block_sum(scene, n)
+            valid = valid_mask(total, measured)
             if not valid.any():
                 raise IPCInputError(f"{lab.path}[MEASURED,{ver}]: no valid pixel left after "
                                     "masking NaNs and the border")
-            groups.setdefault(scene.shape, []).append(
-                (fill_scene(scene), np.where(valid, measured, 0.0), valid))
-        scenes, measured, valid = [], [], []
-        for items in groups.values():
-            scenes.append(np.stack([s for s, _, _ in items]))
-            measured.append(np.stack([m for _, m, _ in items]))
-            valid.append(np.stack([v for _, _, v in items]))
-        return cls(scenes, measured, valid, int(sum(v.sum() for v in valid)))
+            filled = fill_scene(scene)
+            groups.setdefault((measured.shape, n), []).append(
+                (block_sum(filled, n), np.where(valid, measured, 0.0), valid, filled))
+        scenes, measured, valid, sources, factors = [], [], [], [], []
+        for (_, n), items in groups.items():
+            scenes.append(np.stack([s for s, _, _, _ in items]))
+            measured.append(np.stack([m for _, m, _, _ in items]))
+            valid.append(np.stack([v for _, _, v, _ in items]))
+            sources.append(scenes[-1] if n == 1 else np.stack([f for _, _, _, f in items]))
+            factors.append(n)
+        return cls(scenes, measured, valid, int(sum(v.sum() for v in valid)), sources, factors)
 
     def predict(self, model):
         """Per block ``(mean, independent variance, response scale)``
         (:meth:`DetectorModel.predict_parts`)."""
-        return [model.predict_parts(s) for s in self.scenes]
+        return [model.predict_parts(s, n) for s, n in zip(self.sources, self.oversample)]
 
     @staticmethod
     def total_variance(model, parts):
@@ -85,8 +105,9 @@ class PairBlocks:
     def whitened(self, model, sds):
         """Residual vector ``(M - mean) / sd`` over valid pixels, ``sds`` fixed."""
         out = []
-        for s, m, v, sd in zip(self.scenes, self.measured, self.valid, sds):
-            out.append(((m - model.expected(s)) / sd)[v])
+        for s, n, m, v, sd in zip(self.sources, self.oversample, self.measured, self.valid,
+                                  sds):
+            out.append(((m - model.expected(s, n)) / sd)[v])
         return np.concatenate(out)
 
     def residuals(self, model, parts=None):
@@ -118,8 +139,9 @@ class PairBlocks:
         gaps, per_bin = [], []
         for _ in range(n_sim):
             res, means = [], []
-            for s, v, (mean, _, _), var in zip(self.scenes, self.valid, parts, variances):
-                res.extend(residual(model.simulate(s, rng), mean, var, v))
+            for s, n, v, (mean, _, _), var in zip(self.sources, self.oversample, self.valid,
+                                                  parts, variances):
+                res.extend(residual(model.simulate(s, rng, n), mean, var, v))
                 means.extend(mean)
             gaps.append(gap(res))
             per_bin.append(residual_vs_signal(res, means)[2])
