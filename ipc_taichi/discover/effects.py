@@ -289,18 +289,27 @@ def diffusion_weights(sigma, half):
     return w / w.sum()
 
 
-def diffuse(charge, sigma_px):
+def diffuse(charge, sigma_px, at_centre=False):
     """Spread charge generated across each pixel's area by a Gaussian of RMS ``sigma_px``.
 
     Separable and normalised (charge conserved inside the frame); the frame
-    is extended by its edge values, as the scene beyond it is unknown.
+    is extended by its edge values, as the scene beyond it is unknown. With
+    ``at_centre`` the charge is generated at each pixel's centre instead
+    (weights ``Phi((k + 1/2)/sigma) - Phi((k - 1/2)/sigma)``): the picture for a
+    point source narrower than the cell that holds it.
     """
     from scipy.ndimage import convolve1d
 
     sigma = float(sigma_px)
     if sigma <= 0:
         return charge
-    w = diffusion_weights(sigma, max(2, int(math.ceil(4 * sigma)) + 1))
+    half = max(2, int(math.ceil(4 * sigma)) + 1)
+    if at_centre:
+        k = np.arange(-half, half + 1, dtype=np.float64)
+        w = ndtr((k + 0.5) / sigma) - ndtr((k - 0.5) / sigma)
+        w = w / w.sum()
+    else:
+        w = diffusion_weights(sigma, half)
     out = convolve1d(charge, w, axis=-1, mode="nearest")
     return convolve1d(out, w, axis=-2, mode="nearest")
 

@@ -13,12 +13,13 @@ import math
 import numpy as np
 
 from .blocks import PairBlocks
-from .diagnostics import dipoles
-from .effects import EFFECTS, contradiction
+from .diagnostics import dipoles, residuals_by_probe
+from .effects import EFFECTS, contradiction, implausible
 from .fitting import is_noise_effect, params_report
 from .report import UNEXPLAINED_Z
 
-__all__ = ["gate", "signature", "noise_mean_z", "flat_interior_z", "SIGNATURE_Z2"]
+__all__ = ["gate", "signature", "noise_mean_z", "flat_interior_z", "mean_misfit",
+           "SIGNATURE_Z2"]
 
 SIGNATURE_Z2 = 25.0  # an effect's own signature must be 5 sigma (see signature)
 
@@ -83,6 +84,26 @@ def flat_interior_z(frames, model, parts, masks):
 
 
 
+def mean_misfit(residuals, masks):
+    """The probe part (centres or surroundings of hot pixels, stars, flat
+    patches and their edges) whose mean residual is most significant, as
+    ``("stars centres", z)``, when it passes :data:`~.report.UNEXPLAINED_Z`;
+    else ``None``. ``z`` is the mean over its standard error measured from
+    the residuals' own scatter (an inflated variance does not hide it, an
+    underestimated one does not create it)."""
+    worst = None
+    for kind, parts in residuals_by_probe(residuals, masks).items():
+        for where, part in parts.items():
+            if part["n"] <= 5 or not np.isfinite(part["z"]) or not part["chi2"] > 0:
+                continue
+            spread = max(part["chi2"] - part["mean"] ** 2, 1e-12)
+            z = part["z"] / math.sqrt(spread)
+            if abs(z) > UNEXPLAINED_Z and (worst is None or abs(z) > abs(worst[1])):
+                worst = (f"{kind.replace('_', ' ')} "
+                         f"{'centres' if where == 'centre' else 'surroundings'}", z)
+    return worst
+
+
 def gate(frames, model, parts, trials, probes, masks):
     """Why each fitted candidate may not be named: ``{effect: reason}``.
 
@@ -90,19 +111,34 @@ def gate(frames, model, parts, trials, probes, masks):
     result. A fit that contradicts the effect's meaning
     (:func:`~.effects.contradiction`), a noise effect where the residuals
     have a non-zero mean, a response map whose flat areas show no variance
-    excess, and a shift without dipoles are refused.
+    excess, and a shift without dipoles are refused; so are a fit whose
+    strength is outside the effect's physical range
+    (:func:`~.effects.implausible`) and a noise effect while the mean is
+    mis-modelled at the probes (:func:`mean_misfit`): variance effects earn
+    their name from variance alone.
     """
     contradicting = {}
     for n, t in trials.items():
-        why = contradiction(n, {p.name: t[3].values[(n, p.name)] for p in EFFECTS[n].params})
+        params = {p.name: t[3].values[(n, p.name)] for p in EFFECTS[n].params}
+        why = contradiction(n, params)
         if why:
             contradicting[n] = "the fit contradicts the effect: " + why
+        elif implausible(n, params):
+            contradicting[n] = ("the fitted strength is outside the physical range: "
+                                + implausible(n, params))
+    residuals = frames.residuals(model, parts)[0]
+    misfit = mean_misfit(residuals, masks)
     for n in trials:
         if is_noise_effect(n) and n not in contradicting:
             z = noise_mean_z(frames, model, parts, n)
             if abs(z) > UNEXPLAINED_Z:
                 contradicting[n] = (f"a variance excess, but the residuals there have a "
                                     f"non-zero mean ({z:+.1f} standard errors)")
+            elif misfit:
+                where, zm = misfit
+                contradicting[n] = (f"a variance excess, but the mean is mis-modelled where "
+                                    f"it acts ({where}: {zm:+.1f} standard errors): a variance "
+                                    "effect would absorb a wrong mean")
     if "flat_field" in trials and "flat_field" not in contradicting:
         z = flat_interior_z(frames, model, parts, masks)
         if z < UNEXPLAINED_Z:
@@ -110,7 +146,7 @@ def gate(frames, model, parts, trials, probes, masks):
                 f"a response map, but flat areas show no variance excess ({z:+.1f} sigma): "
                 "the excess sits at sources and edges")
     if "misregistration" in trials:
-        current = dipoles(frames.residuals(model, parts)[0], probes)
+        current = dipoles(residuals, probes)
         z2 = max(current["x"][1] ** 2, current["y"][1] ** 2)
         if not z2 > SIGNATURE_Z2:  # a blur can pass for a spline shift; a shift has dipoles
             contradicting["misregistration"] = (

@@ -61,7 +61,7 @@ from ..model import CouplingModel
 from ..laws import ParametricLaw, get_law
 from .effects import (EFFECTS, LAW_SCALE_DIFF, LAW_SCALE_LEVEL, brighter_fatter, diffuse,
                       nonlinearity, reciprocity, shift_scene)
-from .sampling import block_sum, boundary_arrivals, shift_fine
+from .sampling import block_sum, boundary_arrivals, isolated_points, shift_fine
 
 __all__ = ["DetectorModel", "CHAIN_ORDER", "is_constant_law"]
 
@@ -188,7 +188,12 @@ class DetectorModel:
             else:
                 c = reciprocity(c, alpha)
         if "charge_diffusion" in self.effects:
-            c = diffuse(c, n * self._p("charge_diffusion", "sigma_px"))
+            sigma = self._p("charge_diffusion", "sigma_px")
+            if n > 1:  # a pinhole spot's light starts at its sub-pixel's centre
+                points = isolated_points(c)
+                c = diffuse(c - points, n * sigma) + diffuse(points, n * sigma, at_centre=True)
+            else:
+                c = diffuse(c, sigma)
         arrivals = None
         if n > 1:
             if "brighter_fatter" in self.effects:

@@ -267,28 +267,45 @@ SUBPIXEL_LIMITS = {
         "sharper than about 2.2 px FWHM, single-pixel events and sharp edges exactly (a "
         "0.3 px shift of a 1.8 px FWHM star leaves 1.8 % of its peak with a spline and "
         "with a band-limited shift alike): what remains here may be that limit of the "
-        "data, not a missing effect",
+        "data, not a missing effect; a SCENE with OVERSAMP (the light on a sub-pixel grid) "
+        "lifts it",
     "charge_diffusion":
         "the diffusion model spreads charge generated uniformly across each pixel (right "
         "for single-pixel events and flat areas); light that peaks inside its pixel (a "
         "star) keeps more of it, so where the data's diffusion starts from the photons' "
         "true positions, star centres are left above the model (sigma 0.22 px, a 1.8 px "
         "FWHM star: the model's peak 11 % low) and SCENE cannot say which picture holds "
-        "for which pixel: what remains at star centres may be that limit of the data",
+        "for which pixel: what remains at star centres may be that limit of the data; a "
+        "SCENE with OVERSAMP (the light on a sub-pixel grid) lifts it",
+    "brighter_fatter":
+        "the boundary-shift picture moves the charge that arrives next to each pixel "
+        "boundary, taken as uniform across the pixel; light concentrated inside its pixel "
+        "(a pinhole spot, a star's core) arrives mostly away from the boundaries and is "
+        "moved less, and SCENE does not say where it lies: what remains at hot pixels and "
+        "star centres may be that limit of the data; a SCENE with OVERSAMP (the light on a "
+        "sub-pixel grid) lifts it",
 }
 
 
-def describe_unexplained(d, rejected=(), effects=()):
+def describe_unexplained(d, rejected=(), effects=(), pixel_totals=None, n_pairs=None,
+                         below_floor=0.0):
     """Words a detector scientist can act on for what the final model leaves.
 
     ``d`` is the final diagnostics (with ``floor_chi2_vs_signal``, the
     floor simulations' chi-square per signal bin); ``rejected`` the
     candidates that were fitted but not named, ``(effect, why)``;
     ``effects`` the final model's effects, whose known limits
-    (:data:`SUBPIXEL_LIMITS`) are named. Only patterns that stand out at
-    :data:`UNEXPLAINED_Z` sigma are described.
+    (:data:`SUBPIXEL_LIMITS`) are named where SCENE held pixel totals
+    (``pixel_totals``: those pairs' EXTVER, ``None`` = all of the
+    ``n_pairs``); ``below_floor`` the floor scatters by which the final gap
+    lies *below* the floor (a variance inflated somewhere). Only patterns
+    that stand out at :data:`UNEXPLAINED_Z` sigma are described.
     """
     out = []
+    if below_floor > 3.0:
+        out.append(f"the final gap lies {below_floor:.1f} floor scatters below the floor: the "
+                   "model's variance is inflated (a variance effect absorbing a wrong mean, or "
+                   "a noise parameter fitted too large)")
     n = d["signal_counts"]
     floor_bins = d.get("floor_chi2_vs_signal")
     expect = floor_bins if floor_bins is not None else np.ones(len(n))
@@ -310,8 +327,12 @@ def describe_unexplained(d, rejected=(), effects=()):
     if np.isfinite(z) and z > UNEXPLAINED_Z:
         out.append(f"residuals repeat pixel by pixel across pairs (mean product {m:.3f}): "
                    "a fixed per-pixel pattern")
-    out += [f"{name} is in the model, but {SUBPIXEL_LIMITS[name]}"
-            for name in effects if name in SUBPIXEL_LIMITS]
+    if pixel_totals is None or pixel_totals:
+        which = "" if pixel_totals is None or len(pixel_totals) == n_pairs else (
+            " (pairs whose SCENE holds pixel totals, EXTVER "
+            + ", ".join(str(v) for v in pixel_totals) + ")")
+        out += [f"{name} is in the model, but {SUBPIXEL_LIMITS[name]}{which}"
+                for name in effects if name in SUBPIXEL_LIMITS]
     var_bad = ok & (z_var > UNEXPLAINED_Z) & (np.abs(z_mean) < np.maximum(3.0, 0.3 * z_var))
     if var_bad.any():
         lo, hi = centres[var_bad].min(), centres[var_bad].max()

@@ -12,12 +12,19 @@ Within a sub-pixel the charge is taken as uniform: that is the picture
 under which the fine-grid operators below are exact (a shift of a
 piecewise-constant density is a linear interpolation of its cell integrals;
 a Gaussian spread of charge uniform in a cell is the closed form of
-:func:`~.effects.diffusion_weights` at the sub-pixel scale).
+:func:`~.effects.diffusion_weights` at the sub-pixel scale). One exception:
+a sub-pixel whose neighbours hold almost nothing (:func:`isolated_points`)
+holds a source narrower than itself (a pinhole spot), whose light is taken
+at its centre: at ``N = 5`` the two pictures differ by ``1 / (12 N^2)``
+px^2 in the spread's variance, 3 % of a 0.22 px diffusion sigma, which the
+data of a few thousand hot pixels resolve.
 """
 
 import numpy as np
 
-__all__ = ["block_sum", "shift_fine", "boundary_arrivals"]
+__all__ = ["block_sum", "shift_fine", "boundary_arrivals", "isolated_points", "POINT_CONTRAST"]
+
+POINT_CONTRAST = 0.05  # a sub-pixel is a point when its 8 neighbours hold under 5 % of it
 
 
 def block_sum(fine, n):
@@ -74,3 +81,17 @@ def boundary_arrivals(fine, n, axis):
         return n * last[..., :, :-1], n * first[..., :, 1:]
     first, last = blocks[..., 0, :, :].sum(axis=-1), blocks[..., n - 1, :, :].sum(axis=-1)
     return n * last[..., :-1, :], n * first[..., 1:, :]
+
+
+def isolated_points(fine, contrast=POINT_CONTRAST):
+    """The charge of sub-pixels whose 8 neighbours each hold less than
+    ``contrast`` times their own (zero elsewhere): point sources narrower
+    than a sub-pixel."""
+    from scipy.ndimage import maximum_filter
+
+    fine = np.asarray(fine, dtype=np.float64)
+    ring = np.ones((3, 3), dtype=bool)
+    ring[1, 1] = False
+    footprint = ring.reshape((1,) * (fine.ndim - 2) + (3, 3))
+    around = maximum_filter(fine, footprint=footprint, mode="constant", cval=0.0)
+    return np.where((fine > 0) & (around < contrast * fine), fine, 0.0)

@@ -59,7 +59,7 @@ from .diagnostics import (SIGNAL_BINS, after_images, dipoles, find_probes, gap, 
                           probe_masks, residual_vs_signal, residuals_by_probe, stacked_windows)
 from .effects import SEPARATION
 from .fitting import (EVIDENCE_THRESHOLD, candidates, chi2_of, fit_candidate, full_evidence,
-                      partners, params_report, prune, refit_all, sds_of)
+                      is_noise_effect, partners, params_report, prune, refit_all, sds_of)
 from .gates import SIGNATURE_Z2, gate, signature
 from .labdata import LabData, read_lab
 from .model import CHAIN_ORDER, DetectorModel
@@ -85,6 +85,14 @@ class Discovery:
     baseline: dict = field(repr=False, default_factory=dict)
     final: dict = field(repr=False, default_factory=dict)
     gaps: list = field(default_factory=list)
+
+
+def _scatters_below_floor(frames, model, parts, gap_now, seed, n_sim=8):
+    """How many floor scatters ``gap_now`` lies below the floor of ``model``
+    (negative when above); the floor simulated with its own seed, so the
+    search's other draws stay as they were."""
+    floor, sigma, _ = frames.floor(model, np.random.default_rng(seed + 7919), n_sim, parts)
+    return (floor - gap_now) / sigma if sigma > 0 else 0.0
 
 
 def _diagnostics(frames, model, probes, masks, parts=None):
@@ -190,17 +198,26 @@ def discover(data, seed=0, threshold=EVIDENCE_THRESHOLD, max_steps=MAX_STEPS,
         gap_after = gap(frames.residuals(refit.model, new_parts)[0])
         excess = current_gap - floor
         fraction = (current_gap - gap_after) / excess if excess > 0 else None
+        refusal = None
         if above_floor > 3.0 and (fraction is None or fraction < MIN_EXPLAINED_FRACTION):
-            why = (f"best candidate {best} (delta BIC {evidence:.1f}) removes only "
-                   f"{100 * (fraction or 0.0):.1f} % of the gap's excess over the floor "
-                   f"(needs {100 * MIN_EXPLAINED_FRACTION:g} %): a symptom of something the "
-                   "vocabulary lacks, not a finding")
+            refusal = (f"it would remove only {100 * (fraction or 0.0):.1f} % of the excess",
+                       f"removes only {100 * (fraction or 0.0):.1f} % of the gap's excess over "
+                       f"the floor (needs {100 * MIN_EXPLAINED_FRACTION:g} %): a symptom of "
+                       "something the vocabulary lacks, not a finding")
+        elif any(is_noise_effect(e) for e in refit.model.effects):
+            below = _scatters_below_floor(frames, refit.model, new_parts, gap_after, seed)
+            if below > COMPLETE_SIGMAS:
+                refusal = (f"it would leave the gap {below:.1f} scatters below the floor: a "
+                           "variance inflated to absorb a wrong mean",
+                           f"would leave the gap {gap_after:.4f} {below:.1f} scatters below "
+                           "its floor: the model's variance would absorb a mis-modelled mean")
+        if refusal:
+            why = f"best candidate {best} (delta BIC {evidence:.1f}) {refusal[1]}"
             stop = {"reason": why, "best_candidate": best, "evidence": round(evidence, 2),
                     "explained_fraction": fraction,
                     "gap_scatters_above_floor": round(above_floor, 2),
                     "contradicting": contradicting}
-            rejected[:] = [(m, w) for m, w in rejected if m != best] + [
-                (best, f"it would remove only {100 * (fraction or 0.0):.1f} % of the excess")]
+            rejected[:] = [(m, w) for m, w in rejected if m != best] + [(best, refusal[0])]
             say("stop: " + why)
             break
         alternatives = []
@@ -246,7 +263,10 @@ def discover(data, seed=0, threshold=EVIDENCE_THRESHOLD, max_steps=MAX_STEPS,
     final = _diagnostics(frames, model, probes, masks, parts)
     final["floor_chi2_vs_signal"] = floor_bins
     complete = bool(abs(current_gap - floor) <= COMPLETE_SIGMAS * floor_sigma)
-    unexplained = [] if complete else describe_unexplained(final, rejected, list(model.effects))
+    pixel_totals = [ver for (ver, _, _), n in zip(lab.pairs, lab.oversample) if n == 1]
+    unexplained = [] if complete else describe_unexplained(
+        final, rejected, list(model.effects), pixel_totals, len(lab.pairs),
+        (floor - current_gap) / floor_sigma if floor_sigma > 0 else 0.0)
     final_params = {}
     final_errors = {}
     if final_fit is not None:
@@ -261,6 +281,7 @@ def discover(data, seed=0, threshold=EVIDENCE_THRESHOLD, max_steps=MAX_STEPS,
                          "the model's prediction of SCENE with shot and read noise propagated",
         "n_pixels": frames.n,
         "n_pairs": len(lab.pairs),
+        "oversample": {str(ver): n for (ver, _, _), n in zip(lab.pairs, lab.oversample)},
         "baseline_gap": baseline["gap"],
         "gap_floor": floor,
         "gap_floor_sigma": floor_sigma,
