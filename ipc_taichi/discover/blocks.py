@@ -14,6 +14,7 @@ import numpy as np
 
 from ..errors import IPCInputError
 from .diagnostics import fill_scene, gap, residual, residual_vs_signal, valid_mask
+from .model import SUBPIXEL_EFFECTS
 from .sampling import block_sum
 
 __all__ = ["PairBlocks", "deviance"]
@@ -91,10 +92,19 @@ class PairBlocks:
             factors.append(n)
         return cls(scenes, measured, valid, int(sum(v.sum() for v in valid)), sources, factors)
 
+    def inputs(self, model):
+        """Per block what ``model`` is given, ``(scene, oversample)``: the
+        sub-pixel SCENE only when the model has an effect that uses it
+        (:data:`~.model.SUBPIXEL_EFFECTS`); otherwise the pixels' totals, the
+        same numbers at a 25th of the work for ``N = 5``."""
+        if not SUBPIXEL_EFFECTS & set(model.effects):
+            return [(s, 1) for s in self.scenes]
+        return list(zip(self.sources, self.oversample))
+
     def predict(self, model):
         """Per block ``(mean, independent variance, response scale)``
         (:meth:`DetectorModel.predict_parts`)."""
-        return [model.predict_parts(s, n) for s, n in zip(self.sources, self.oversample)]
+        return [model.predict_parts(s, n) for s, n in self.inputs(model)]
 
     @staticmethod
     def total_variance(model, parts):
@@ -105,8 +115,7 @@ class PairBlocks:
     def whitened(self, model, sds):
         """Residual vector ``(M - mean) / sd`` over valid pixels, ``sds`` fixed."""
         out = []
-        for s, n, m, v, sd in zip(self.sources, self.oversample, self.measured, self.valid,
-                                  sds):
+        for (s, n), m, v, sd in zip(self.inputs(model), self.measured, self.valid, sds):
             out.append(((m - model.expected(s, n)) / sd)[v])
         return np.concatenate(out)
 
@@ -139,8 +148,8 @@ class PairBlocks:
         gaps, per_bin = [], []
         for _ in range(n_sim):
             res, means = [], []
-            for s, n, v, (mean, _, _), var in zip(self.sources, self.oversample, self.valid,
-                                                  parts, variances):
+            for (s, n), v, (mean, _, _), var in zip(self.inputs(model), self.valid, parts,
+                                                    variances):
                 res.extend(residual(model.simulate(s, rng, n), mean, var, v))
                 means.extend(mean)
             gaps.append(gap(res))

@@ -244,15 +244,22 @@ def contradiction(effect, params):
 # absorbing something else): HgCdTe and CCD response maps (quantum efficiency
 # and gain together) vary by a few per cent RMS; the brighter-fatter effect
 # moves a few per cent of a full pixel's charge (the mean of the x and y
-# deflections at 50 ke-).
-PHYSICAL_LIMITS = {"flat_field": 0.05, "brighter_fatter": 0.10}
+# deflections at 50 ke-); a read noise is not several times what the
+# detector's own characterisation (READNOIS) says.
+PHYSICAL_LIMITS = {"flat_field": 0.05, "brighter_fatter": 0.10, "excess_read_noise": 3.0}
 
 
-def implausible(effect, params):
+def implausible(effect, params, readnoise=None):
     """Why fitted ``params`` lie outside the physical range of ``effect``
-    (:data:`PHYSICAL_LIMITS`), or ``None``. Such a fit is not named: its
+    (:data:`PHYSICAL_LIMITS`; for ``excess_read_noise`` a multiple of the
+    header's ``readnoise``), or ``None``. Such a fit is not named: its
     strength says it absorbs a misfit of another kind."""
     limit = PHYSICAL_LIMITS.get(effect)
+    if effect == "excess_read_noise" and readnoise:
+        total = math.sqrt(max(readnoise ** 2 + params["excess_variance_e2"], 0.0))
+        if total > limit * readnoise:
+            return (f"a read noise of {total:.1f} e- ({total / readnoise:.1f} times READNOIS; "
+                    f"at most {limit:g} times is plausible)")
     if effect == "flat_field":
         rms = math.sqrt(max(params["response_variance"], 0.0))
         if rms > limit:

@@ -123,11 +123,16 @@ def gate(frames, model, parts, trials, probes, masks):
         why = contradiction(n, params)
         if why:
             contradicting[n] = "the fit contradicts the effect: " + why
-        elif implausible(n, params):
+        elif implausible(n, params, model.readnoise):
             contradicting[n] = ("the fitted strength is outside the physical range: "
-                                + implausible(n, params))
+                                + implausible(n, params, model.readnoise))
     residuals = frames.residuals(model, parts)[0]
+    current = dipoles(residuals, probes)
     misfit = mean_misfit(residuals, masks)
+    for axis in ("x", "y"):  # a dipole's two sides cancel in the means above
+        z = current[axis][1]
+        if misfit is None and np.isfinite(z) and abs(z) > UNEXPLAINED_Z:
+            misfit = (f"dipoles along {axis} around the sources", z)
     for n in trials:
         if is_noise_effect(n) and n not in contradicting:
             z = noise_mean_z(frames, model, parts, n)
@@ -146,7 +151,6 @@ def gate(frames, model, parts, trials, probes, masks):
                 f"a response map, but flat areas show no variance excess ({z:+.1f} sigma): "
                 "the excess sits at sources and edges")
     if "misregistration" in trials:
-        current = dipoles(residuals, probes)
         z2 = max(current["x"][1] ** 2, current["y"][1] ** 2)
         if not z2 > SIGNATURE_Z2:  # a blur can pass for a spline shift; a shift has dipoles
             contradicting["misregistration"] = (

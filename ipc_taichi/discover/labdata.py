@@ -30,7 +30,7 @@ from .effects import EFFECTS
 from .model import DetectorModel
 
 __all__ = ["LabData", "read_lab", "write_lab", "make_scene", "simulate_lab", "effect_params",
-           "FLAT_LEVELS"]
+           "ipclaw", "FLAT_LEVELS"]
 
 FLAT_LEVELS = (3000.0, 10000.0, 20000.0, 35000.0, 50000.0)  # e-, one patch each per frame
 _CELL = 8  # px: scene elements sit one per cell, so they stay isolated
@@ -289,9 +289,30 @@ def effect_params(name, value, readnoise=None):
     }[name]()
 
 
+def ipclaw(law):
+    """The ``IPCLAW`` text of a law: its name for the paper's laws and the
+    constant ones, ``parametric:AMP_DIFF,SCALE_DIFF,AMP_LEVEL,SCALE_LEVEL,FLOOR``
+    for another parametric law (read back by :func:`~ipc_taichi.laws.get_law`);
+    a tabulated law has no header form (:class:`IPCInputError`)."""
+    law = get_law(law)
+    if getattr(law, "kind", "") != "parametric":
+        raise IPCInputError(f"law {law.name!r}: a tabulated law cannot be written to IPCLAW")
+    def coefficients(x):
+        return (x.amp_diff, x.scale_diff, x.amp_level, x.scale_level, x.floor)
+
+    for spec in (law.name, f"constant:{law.floor!r}"):
+        try:
+            if coefficients(get_law(spec)) == coefficients(law):
+                return spec
+        except LawError:
+            pass
+    return "parametric:" + ",".join(repr(float(v)) for v in (
+        law.amp_diff, law.scale_diff, law.amp_level, law.scale_level, law.floor))
+
+
 def simulate_lab(path, effects=None, readnoise=12.0, seed=0, law="donlon2018", pairs=2,
                  shape=(128, 128), shot_noise=True, nan_fraction=0.0, dtype=np.float64,
-                 overwrite=False, oversample=1):
+                 overwrite=False, oversample=1, coupling=None):
     """Write a lab file whose MEASURED frames hide ``effects``.
 
     Parameters
@@ -302,6 +323,10 @@ def simulate_lab(path, effects=None, readnoise=12.0, seed=0, law="donlon2018", p
         frames are made with that law while ``IPCLAW`` says ``law``.
     law : str
         The starting model's law, written to ``IPCLAW``.
+    coupling : CouplingModel, optional
+        Replaces ``law``: the frames are made with its law, geometry and
+        edge (:meth:`DetectorModel.from_coupling`) plus ``effects``, and
+        ``IPCLAW`` holds its law (:func:`ipclaw`).
     nan_fraction : float
         Fraction of pixels of each MEASURED frame set to NaN (bad pixels).
     dtype : numpy dtype
@@ -321,11 +346,19 @@ def simulate_lab(path, effects=None, readnoise=12.0, seed=0, law="donlon2018", p
     if unknown:
         raise IPCInputError(f"unknown effect(s) {', '.join(sorted(unknown))}; "
                             f"known: {', '.join(EFFECTS)}")
+    start = None if coupling is None else DetectorModel.from_coupling(coupling, readnoise,
+                                                                       shot_noise)
+    if start is not None:
+        law = ipclaw(coupling.law)
     data_law = get_law(law)
     if "signal_dependent_ipc" in effects:
         data_law = get_law(effects.pop("signal_dependent_ipc"))
     params = {name: effect_params(name, value, readnoise) for name, value in effects.items()}
-    truth = DetectorModel(data_law, readnoise, shot_noise, params)
+    if start is not None:
+        truth = DetectorModel(data_law, readnoise, shot_noise, {**start.effects, **params},
+                              start.edge)
+    else:
+        truth = DetectorModel(data_law, readnoise, shot_noise, params)
     rng = np.random.default_rng(seed)
     out = []
     scenes = np.stack([make_scene(shape, rng, oversample=oversample) for _ in range(int(pairs))])

@@ -56,6 +56,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ..detector import collect, read_noise, read_out
+from ..errors import GeometryError
 from ..geometry import Geometry
 from ..model import CouplingModel
 from ..laws import ParametricLaw, get_law
@@ -63,11 +64,15 @@ from .effects import (EFFECTS, LAW_SCALE_DIFF, LAW_SCALE_LEVEL, brighter_fatter,
                       nonlinearity, reciprocity, shift_scene)
 from .sampling import block_sum, boundary_arrivals, isolated_points, shift_fine
 
-__all__ = ["DetectorModel", "CHAIN_ORDER", "is_constant_law"]
+__all__ = ["DetectorModel", "CHAIN_ORDER", "SUBPIXEL_EFFECTS", "is_constant_law"]
 
 CHAIN_ORDER = ("misregistration", "reciprocity_failure", "charge_diffusion", "dark_current",
                "brighter_fatter", "flat_field", "shot_noise", "ipc", "classical_nonlinearity",
                "read_noise", "excess_read_noise")
+
+# the effects that move charge by a fraction of a pixel: they use a sub-pixel
+# SCENE when there is one (every other stage works on the pixels' totals)
+SUBPIXEL_EFFECTS = frozenset({"misregistration", "charge_diffusion", "brighter_fatter"})
 
 
 def is_constant_law(law):
@@ -117,6 +122,33 @@ class DetectorModel:
             raise ValueError(f"unknown effect(s) {sorted(unknown)}; known: {', '.join(EFFECTS)}")
 
     # -- building ---------------------------------------------------------
+    @classmethod
+    def from_coupling(cls, coupling, readnoise, shot_noise=True):
+        """The starting model of a :class:`~ipc_taichi.model.CouplingModel`
+        (a coupling-model file): its law and edge, and its geometry as the
+        coupling effects it amounts to (``anisotropic_ipc``, ``diagonal_ipc``,
+        ``second_neighbor_ipc``, with absolute couplings at zero signal).
+
+        Raises :class:`~ipc_taichi.errors.GeometryError` for a geometry that is
+        not of that symmetric form.
+        """
+        g = coupling.geometry
+        h, v = g.weight(0, 1), g.weight(1, 0)
+        diag, second = g.weight(1, 1), g.weight(0, 2)
+        if Geometry.terms(h, v, diag, second).weights != g.weights:
+            raise GeometryError("the coupling model's geometry is not symmetric nearest, "
+                                "diagonal and second-neighbour terms (second neighbours "
+                                "equal along x and y): discover cannot start from it")
+        alpha0 = float(coupling.law.alpha(0.0, 0.0))
+        effects = {}
+        if (h, v) != (1.0, 1.0):
+            effects["anisotropic_ipc"] = {"weight_horizontal": h, "weight_vertical": v}
+        if diag:
+            effects["diagonal_ipc"] = {"alpha_diag": diag * alpha0}
+        if second:
+            effects["second_neighbor_ipc"] = {"alpha_second": second * alpha0}
+        return cls(coupling.law, readnoise, shot_noise, effects, coupling.edge)
+
     def with_effects(self, effects):
         """A copy with these ``{name: params}`` replacing or adding to the current ones."""
         merged = {k: dict(v) for k, v in self.effects.items()}

@@ -83,15 +83,27 @@ def boundary_arrivals(fine, n, axis):
     return n * last[..., :-1, :], n * first[..., 1:, :]
 
 
+_POINTS_CACHE = {}  # id(fine) -> (fine, points): fits diffuse the same SCENE many times
+
+
 def isolated_points(fine, contrast=POINT_CONTRAST):
     """The charge of sub-pixels whose 8 neighbours each hold less than
     ``contrast`` times their own (zero elsewhere): point sources narrower
     than a sub-pixel."""
     from scipy.ndimage import maximum_filter
 
+    hit = _POINTS_CACHE.get((id(fine), contrast))
+    if hit is not None and hit[0] is fine:
+        return hit[1]
+    key = (id(fine), contrast)
+    source = fine
     fine = np.asarray(fine, dtype=np.float64)
     ring = np.ones((3, 3), dtype=bool)
     ring[1, 1] = False
     footprint = ring.reshape((1,) * (fine.ndim - 2) + (3, 3))
     around = maximum_filter(fine, footprint=footprint, mode="constant", cval=0.0)
-    return np.where((fine > 0) & (around < contrast * fine), fine, 0.0)
+    points = np.where((fine > 0) & (around < contrast * fine), fine, 0.0)
+    if len(_POINTS_CACHE) > 8:
+        _POINTS_CACHE.clear()
+    _POINTS_CACHE[key] = (source, points)
+    return points

@@ -54,6 +54,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import IPCInputError
+from ..model import CouplingModel
 from .blocks import PairBlocks
 from .diagnostics import (SIGNAL_BINS, after_images, dipoles, find_probes, gap, pair_correlation,
                           probe_masks, residual_vs_signal, residuals_by_probe, stacked_windows)
@@ -113,7 +114,7 @@ def _diagnostics(frames, model, probes, masks, parts=None):
 
 
 def discover(data, seed=0, threshold=EVIDENCE_THRESHOLD, max_steps=MAX_STEPS,
-             floor_simulations=FLOOR_SIMULATIONS, log=None):
+             floor_simulations=FLOOR_SIMULATIONS, log=None, start=None):
     """Find the effects missing from the starting model of a lab file.
 
     Parameters
@@ -126,6 +127,10 @@ def discover(data, seed=0, threshold=EVIDENCE_THRESHOLD, max_steps=MAX_STEPS,
         Minimum delta BIC for an effect to be added.
     log : callable, optional
         Called with one progress line per step.
+    start : CouplingModel or str, optional
+        The starting coupling (a :class:`~ipc_taichi.model.CouplingModel` or
+        a coupling-model file, :meth:`~ipc_taichi.model.CouplingModel.load`),
+        replacing the file's ``IPCLAW`` (:meth:`DetectorModel.from_coupling`).
 
     Returns
     -------
@@ -147,11 +152,16 @@ def discover(data, seed=0, threshold=EVIDENCE_THRESHOLD, max_steps=MAX_STEPS,
         for s, v in zip(block_s, block_v):
             probes.append(find_probes(s, v))
             masks.append(probe_masks(s, v, probes[-1]))
-    model = lab.model()
+    if start is None:
+        model = lab.model()
+    else:
+        coupling = CouplingModel.load(start) if isinstance(start, str) else start
+        model = DetectorModel.from_coupling(coupling, lab.readnoise, lab.shot_noise)
     parts = frames.predict(model)
     baseline = _diagnostics(frames, model, probes, masks, parts)
     current_gap = baseline["gap"]
-    say(f"baseline gap {current_gap:.4f} over {frames.n} pixels ({model.describe()})")
+    model_start = model.describe()
+    say(f"baseline gap {current_gap:.4f} over {frames.n} pixels ({model_start})")
     steps, final_fit, stop, rejected, pruned = [], None, None, [], []
     while len(steps) < max_steps:
         floor, floor_sigma, _ = frames.floor(model, rng, max(4, floor_simulations // 3), parts)
@@ -277,6 +287,7 @@ def discover(data, seed=0, threshold=EVIDENCE_THRESHOLD, max_steps=MAX_STEPS,
         "readnoise": lab.readnoise,
         "shot_noise": lab.shot_noise,
         "ipclaw": lab.law,
+        "starting_model": model_start,
         "gap_statistic": "mean over valid pixels of ((MEASURED - mean)/sd)^2, mean and sd "
                          "the model's prediction of SCENE with shot and read noise propagated",
         "n_pixels": frames.n,
