@@ -255,3 +255,12 @@ def test_benchmark_oversampled_tiny_run():
     assert result["named"] == ["charge_diffusion"] and result["complete"] is True
     assert result["sigma_px"] == pytest.approx(0.2, abs=0.01)
     assert result["wall_s"] > 0 and result["cpu_s"] > 0 and result["peak_rss_mb"] > 10
+
+
+def test_diffusion_collected_at_once_equals_fine_then_summed(rng):
+    # the fast path (spread along x, sum, spread along y, sum) is the fine-grid
+    # diffusion followed by the block sum
+    fine = rng.uniform(0, 50, (2, 60, 45))
+    fine[0, 22, 17] = 40000.0  # a pinhole spot
+    np.testing.assert_allclose(diffuse(fine, 1.1, collect=5),
+                               block_sum(diffuse(fine, 1.1), 5), rtol=1e-12)

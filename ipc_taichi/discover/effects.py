@@ -296,19 +296,26 @@ def diffusion_weights(sigma, half):
     return w / w.sum()
 
 
-def diffuse(charge, sigma_px, at_centre=False):
+def diffuse(charge, sigma_px, at_centre=False, collect=1):
     """Spread charge generated across each pixel's area by a Gaussian of RMS ``sigma_px``.
 
     Separable and normalised (charge conserved inside the frame); the frame
     is extended by its edge values, as the scene beyond it is unknown. With
     ``at_centre`` the charge is generated at each pixel's centre instead
     (weights ``Phi((k + 1/2)/sigma) - Phi((k - 1/2)/sigma)``): the picture for a
-    point source narrower than the cell that holds it.
+    point source narrower than the cell that holds it. With ``collect = N``
+    the cells are sub-pixels and the result is summed over each ``N x N``
+    block (the collecting pixels); the sum along x comes before the
+    spread along y, which then works on a grid ``N`` times smaller.
     """
     from scipy.ndimage import convolve1d
 
+    from .sampling import block_sum_axis
+
     sigma = float(sigma_px)
     if sigma <= 0:
+        if collect > 1:
+            return block_sum_axis(block_sum_axis(charge, collect, -1), collect, -2)
         return charge
     half = max(2, int(math.ceil(4 * sigma)) + 1)
     if at_centre:
@@ -318,6 +325,9 @@ def diffuse(charge, sigma_px, at_centre=False):
     else:
         w = diffusion_weights(sigma, half)
     out = convolve1d(charge, w, axis=-1, mode="nearest")
+    if collect > 1:
+        out = block_sum_axis(out, collect, -1)
+        return block_sum_axis(convolve1d(out, w, axis=-2, mode="nearest"), collect, -2)
     return convolve1d(out, w, axis=-2, mode="nearest")
 
 

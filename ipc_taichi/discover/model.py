@@ -219,16 +219,22 @@ class DetectorModel:
                 c = c * np.repeat(np.repeat(gain, n, axis=-2), n, axis=-1)
             else:
                 c = reciprocity(c, alpha)
+        bf = "brighter_fatter" in self.effects
         if "charge_diffusion" in self.effects:
             sigma = self._p("charge_diffusion", "sigma_px")
             if n > 1:  # a pinhole spot's light starts at its sub-pixel's centre
                 points = isolated_points(c)
-                c = diffuse(c - points, n * sigma) + diffuse(points, n * sigma, at_centre=True)
+                # collected on the pixels at once, unless brighter-fatter needs the fine grid
+                m = 1 if bf else n
+                c = diffuse(c - points, n * sigma, collect=m) + (
+                    diffuse(points, n * sigma, at_centre=True, collect=m) if points.any()
+                    else 0.0)
+                n = n if bf else 1  # without brighter-fatter: already on the pixels
             else:
                 c = diffuse(c, sigma)
         arrivals = None
         if n > 1:
-            if "brighter_fatter" in self.effects:
+            if bf:
                 arrivals = {axis: boundary_arrivals(c, n, axis) for axis in (-1, -2)}
             c = block_sum(c, n)
         if "dark_current" in self.effects:

@@ -22,7 +22,7 @@ data of a few thousand hot pixels resolve.
 
 import numpy as np
 
-__all__ = ["block_sum", "shift_fine", "boundary_arrivals", "isolated_points", "POINT_CONTRAST"]
+__all__ = ["block_sum", "block_sum_axis", "shift_fine", "boundary_arrivals", "isolated_points", "POINT_CONTRAST"]
 
 POINT_CONTRAST = 0.05  # a sub-pixel is a point when its 8 neighbours hold under 5 % of it
 
@@ -38,6 +38,17 @@ def block_sum(fine, n):
         return fine
     ny, nx = fine.shape[-2] // n, fine.shape[-1] // n
     return fine.reshape(fine.shape[:-2] + (ny, n, nx, n)).sum(axis=(-3, -1))
+
+
+def block_sum_axis(fine, n, axis):
+    """Sum groups of ``n`` along ``axis`` (-1 or -2) only."""
+    fine = np.asarray(fine, dtype=np.float64)
+    n = int(n)
+    if n == 1:
+        return fine
+    if axis == -1:
+        return fine.reshape(fine.shape[:-1] + (fine.shape[-1] // n, n)).sum(axis=-1)
+    return fine.reshape(fine.shape[:-2] + (fine.shape[-2] // n, n, fine.shape[-1])).sum(axis=-2)
 
 
 def shift_fine(fine, shift_y, shift_x):
