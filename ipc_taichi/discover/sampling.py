@@ -22,7 +22,8 @@ data of a few thousand hot pixels resolve.
 
 import numpy as np
 
-__all__ = ["block_sum", "block_sum_axis", "shift_fine", "boundary_arrivals", "isolated_points", "POINT_CONTRAST"]
+__all__ = ["block_sum", "block_sum_axis", "shift_fine", "boundary_arrivals", "isolated_points",
+           "POINT_CONTRAST"]
 
 POINT_CONTRAST = 0.05  # a sub-pixel is a point when its 8 neighbours hold under 5 % of it
 

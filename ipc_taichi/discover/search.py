@@ -88,6 +88,34 @@ class Discovery:
     gaps: list = field(default_factory=list)
 
 
+def _alternatives(frames, named, best, bar, dev_now, ln_n, readnoise):
+    """The other nameable candidates whose evidence reached ``bar``, for the
+    step's report: parameters, both evidences and what tells them apart."""
+    out = []
+    for name, (ev, _, kk, f) in sorted(named.items(), key=lambda t: -t[1][0]):
+        if name == best or ev < bar:
+            continue
+        params, errors = params_report(f, name, readnoise)
+        out.append({"effect": name, "evidence": round(ev, 2), "params": params,
+                    "evidence_with_variance": round(full_evidence(frames, f.model, dev_now, kk,
+                                                                  ln_n), 2),
+                    "uncertainties": errors,
+                    "separated_by": SEPARATION.get(frozenset({best, name}),
+                                                   "the stacked windows per signal bin")})
+    return out
+
+
+def _report_head(lab, frames, model_start):
+    """What the report says about its input."""
+    return {"input": lab.path, "readnoise": lab.readnoise, "shot_noise": lab.shot_noise,
+            "ipclaw": lab.law, "starting_model": model_start,
+            "gap_statistic": "mean over valid pixels of ((MEASURED - mean)/sd)^2, mean and sd "
+                             "the model's prediction of SCENE with shot and read noise "
+                             "propagated",
+            "n_pixels": frames.n, "n_pairs": len(lab.pairs),
+            "oversample": {str(ver): n for (ver, _, _), n in zip(lab.pairs, lab.oversample)}}
+
+
 def _scatters_below_floor(frames, model, parts, gap_now, seed, n_sim=8):
     """How many floor scatters ``gap_now`` lies below the floor of ``model``
     (negative when above); the floor simulated with its own seed, so the
@@ -230,19 +258,10 @@ def discover(data, seed=0, threshold=EVIDENCE_THRESHOLD, max_steps=MAX_STEPS,
             rejected[:] = [(m, w) for m, w in rejected if m != best] + [(best, refusal[0])]
             say("stop: " + why)
             break
-        alternatives = []
         best_full = full_evidence(frames, fit.model, dev_now, k, ln_n)
-        for name, (ev, dc, kk, f) in sorted(named.items(), key=lambda t: -t[1][0]):
-            if name == best or ev < max(threshold, ALTERNATIVE_RATIO * evidence):
-                continue
-            params, errors = params_report(f, name, lab.readnoise)
-            alternatives.append({
-                "effect": name, "evidence": round(ev, 2), "params": params,
-                "evidence_with_variance": round(full_evidence(frames, f.model, dev_now, kk,
-                                                               ln_n), 2),
-                "uncertainties": errors,
-                "separated_by": SEPARATION.get(frozenset({best, name}),
-                                               "the stacked windows per signal bin")})
+        alternatives = _alternatives(frames, named, best, max(threshold, ALTERNATIVE_RATIO *
+                                                                evidence), dev_now, ln_n,
+                                     lab.readnoise)
         final_fit, model, parts = refit, refit.model, new_parts
         for name, values, worth in dropped:
             pruned.append({"effect": name, "after_step": len(steps) + 1, "replaced_by": best,
@@ -283,16 +302,7 @@ def discover(data, seed=0, threshold=EVIDENCE_THRESHOLD, max_steps=MAX_STEPS,
         for e in model.effects:
             final_params[e], final_errors[e] = params_report(final_fit, e, lab.readnoise)
     report = {
-        "input": lab.path,
-        "readnoise": lab.readnoise,
-        "shot_noise": lab.shot_noise,
-        "ipclaw": lab.law,
-        "starting_model": model_start,
-        "gap_statistic": "mean over valid pixels of ((MEASURED - mean)/sd)^2, mean and sd "
-                         "the model's prediction of SCENE with shot and read noise propagated",
-        "n_pixels": frames.n,
-        "n_pairs": len(lab.pairs),
-        "oversample": {str(ver): n for (ver, _, _), n in zip(lab.pairs, lab.oversample)},
+        **_report_head(lab, frames, model_start),
         "baseline_gap": baseline["gap"],
         "gap_floor": floor,
         "gap_floor_sigma": floor_sigma,
