@@ -264,3 +264,52 @@ def test_diffusion_collected_at_once_equals_fine_then_summed(rng):
     fine[0, 22, 17] = 40000.0  # a pinhole spot
     np.testing.assert_allclose(diffuse(fine, 1.1, collect=5),
                                block_sum(diffuse(fine, 1.1), 5), rtol=1e-12)
+
+
+def _quiet_diagnostics():
+    n = np.full(4, 100)
+    return {"signal_counts": n, "mean_residual2": np.ones(4), "mean_residual": np.zeros(4),
+            "signal": np.array([100.0, 1e3, 1e4, 4e4]), "floor_chi2_vs_signal": np.ones(4),
+            "dipoles": {"x": (0.0, 0.0), "y": (0.0, 0.0)}, "after_images": (0.0, 0.0, 0),
+            "pair_correlation": (0.0, 0.0), "by_probe": {}}
+
+
+def test_sub_pixel_limit_named_only_where_scene_lacked_it():
+    from ipc_taichi.discover.report import describe_unexplained
+
+    d = _quiet_diagnostics()
+    effects = ["charge_diffusion"]
+    every = describe_unexplained(d, (), effects, pixel_totals=[1, 2], n_pairs=2)
+    assert every[0].startswith("charge_diffusion is in the model, but") and "EXTVER" not in every[0]
+    assert "OVERSAMP" in every[0]
+    some = describe_unexplained(d, (), effects, pixel_totals=[2], n_pairs=2)
+    assert some[0].endswith("(pairs whose SCENE holds pixel totals, EXTVER 2)")
+    none = describe_unexplained(d, (), effects, pixel_totals=[], n_pairs=2)
+    assert not any("is in the model, but" in u for u in none)
+    below = describe_unexplained(d, (), [], pixel_totals=[], n_pairs=2, below_floor=20.0)
+    assert below[0].startswith("the final gap lies 20.0 floor scatters below the floor")
+
+
+def test_independent_generator_sub_pixel_scene_and_fixed_hot_pixels():
+    # the generator's SCENE on the fine grid sums to its pixel totals; a pinhole
+    # spot sits in its pixel's central sub-pixel; with shift_hot=False the hot
+    # pixels stay while the rest moves
+    from tests.independent import peerlab
+
+    rng = np.random.default_rng(5)
+    elements = peerlab.draw_scene(44, rng, hot="mixed")
+    kinds = {e[0] for e in elements}
+    assert {"hot", "point", "star", "patch"} <= kinds
+    fine = peerlab.expected(elements, 44, oversample=5)
+    pixels = peerlab.expected(elements, 44)
+    # to GalSim's drawing accuracy (its FFT folding and k-space thresholds)
+    np.testing.assert_allclose(block_sum(fine, 5), pixels, atol=2e-4 * pixels.max())
+    _, y, x, level, _ = next(e for e in elements if e[0] == "point")
+    assert fine[5 * y + 2, 5 * x + 2] >= level
+    moved = peerlab.expected(elements, 44, shift=(0.0, 0.4), shift_hot=False)
+    _, yh, xh, hot, _ = next(e for e in elements if e[0] == "hot")
+    assert abs(moved[yh, xh] - pixels[yh, xh]) < 1e-3 * hot  # stars' wings moved a little
+    everything = peerlab.expected(elements, 44, shift=(0.0, 0.4))
+    assert everything[yh, xh] - pixels[yh, xh] == pytest.approx(-0.4 * hot, rel=1e-2)
+    _, ys, xs, _, _ = next(e for e in elements if e[0] == "star")
+    assert moved[round(ys), round(xs)] != pytest.approx(pixels[round(ys), round(xs)], rel=1e-3)
