@@ -313,3 +313,26 @@ def test_independent_generator_sub_pixel_scene_and_fixed_hot_pixels():
     assert everything[yh, xh] - pixels[yh, xh] == pytest.approx(-0.4 * hot, rel=1e-2)
     _, ys, xs, _, _ = next(e for e in elements if e[0] == "star")
     assert moved[round(ys), round(xs)] != pytest.approx(pixels[round(ys), round(xs)], rel=1e-3)
+
+
+def test_discover_starts_from_a_coupling_model_file(tmp_path, cli):
+    # frames made with a diagonal coupling from a model file; discover --model
+    # starts from that file: nothing is missing, and the report says where it began
+    import json
+
+    from ipc_taichi.model import CouplingModel
+
+    model_file = str(tmp_path / "coupling.json")
+    CouplingModel.resolve("constant:0.012", "diagonal=0.15").save(model_file)
+    lab = str(tmp_path / "lab.fits")
+    assert cli("simulate-lab", lab, "--size", "64", "--pairs", "1", "--seed", "3", "--model",
+               model_file).returncode == 0
+    out = str(tmp_path / "report.json")
+    done = cli("discover", lab, "--model", model_file, "--report", out, "--quiet")
+    assert done.returncode == 0, done.stderr
+    with open(out) as fh:
+        report = json.load(fh)
+    assert report["missing_effects"] == [] and report["complete"] is True
+    assert "diagonal_ipc(alpha_diag=0.0018)" in report["starting_model"]
+    bad = cli("discover", lab, "--model", str(tmp_path / "missing.json"))
+    assert bad.returncode != 0 and "missing.json" in bad.stderr
