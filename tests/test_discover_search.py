@@ -148,7 +148,7 @@ def test_deviance_with_a_shared_response_map_is_the_gaussian_likelihood(rng):
     # against the multivariate normal written out in full
     from scipy.stats import multivariate_normal
 
-    from ipc_taichi.discover.search import deviance
+    from ipc_taichi.discover.blocks import deviance
 
     k, shape, u = 3, (4, 5), 4e-4
     mean = rng.uniform(100, 40000, (k,) + shape)
@@ -171,10 +171,11 @@ def test_an_effect_that_fell_back_to_off_is_pruned(tmp_path):
     # diffusion at sigma 0, beside the diagonal coupling that made the data)
     # costs nothing to remove: prune() drops it and keeps the effect the data need
     from ipc_taichi.discover import read_lab
-    from ipc_taichi.discover.search import Frames, prune
+    from ipc_taichi.discover.blocks import PairBlocks
+    from ipc_taichi.discover.fitting import prune
 
     path = _make(tmp_path, {"diagonal_ipc": 0.0018}, seed=5)
-    frames = Frames.from_lab(read_lab(path))
+    frames = PairBlocks.from_lab(read_lab(path))
     truth = read_lab(path).model().with_effects({"diagonal_ipc": {"alpha_diag": 0.0018}})
     stale = truth.with_effects({"charge_diffusion": {"sigma_px": 0.0}})
     model, dropped = prune(frames, stale)

@@ -28,6 +28,9 @@ def add_parsers(sub):
     p.add_argument("--threshold", type=float, default=None,
                    help="minimum delta BIC to add an effect (default 25)")
     p.add_argument("--overwrite", action="store_true", help="replace REPORT.json if it exists")
+    p.add_argument("--model", metavar="FILE", default=None,
+                   help="start from this coupling-model file (law, geometry, edge; as written "
+                        "by 'ipc-taichi calibrate') instead of the file's IPCLAW")
     add_quiet_argument(p, "progress lines")
     add_runtime_arguments(p)
     p.set_defaults(run=run_discover)
@@ -48,8 +51,14 @@ def add_parsers(sub):
                         "signal_dependent_ipc=LAW (frames made with LAW, IPCLAW says --law)")
     s.add_argument("--readnoise", type=float, default=12.0, help="e- RMS (default 12)")
     s.add_argument("--seed", type=int, default=0)
-    s.add_argument("--law", default="donlon2018",
+    s.add_argument("--law", default=None,
                    help="the starting model's law, written to IPCLAW (default donlon2018)")
+    s.add_argument("--model", metavar="FILE", default=None,
+                   help="a coupling-model file: the frames are made with its law, geometry "
+                        "and edge, and IPCLAW holds its law (instead of --law)")
+    s.add_argument("--oversample", type=int, default=1, metavar="N",
+                   help="write SCENE on a grid N times finer than MEASURED (OVERSAMP = N; "
+                        "default 1: pixel totals)")
     s.add_argument("--pairs", type=int, default=2, help="SCENE/MEASURED pairs (default 2)")
     s.add_argument("--size", default="128", help="frame size N or NYxNX (default 128)")
     s.add_argument("--no-shot-noise", action="store_true", help="SHOTNOIS = F")
@@ -59,6 +68,14 @@ def add_parsers(sub):
     s.add_argument("--overwrite", action="store_true", help="replace OUT.fits if it exists")
     add_runtime_arguments(s)
     s.set_defaults(run=run_simulate_lab)
+
+
+def _ipclaw_written(path):
+    """The ``IPCLAW`` a written lab file holds."""
+    from astropy.io import fits
+
+    with fits.open(path) as hdul:
+        return hdul[0].header["IPCLAW"]
 
 
 def _init(args):
@@ -76,7 +93,12 @@ def run_discover(args):
     _init(args)
     say = None if args.quiet else (lambda line: print(f"discover: {line}", file=sys.stderr))
     threshold = EVIDENCE_THRESHOLD if args.threshold is None else args.threshold
-    result = discover(args.data, seed=args.seed, threshold=threshold, log=say)
+    start = None
+    if args.model is not None:
+        from ..model import CouplingModel
+
+        start = CouplingModel.load(args.model)  # fail before computing
+    result = discover(args.data, seed=args.seed, threshold=threshold, log=say, start=start)
     if args.figures:
         write_figures(result, args.figures)
     if args.report:
@@ -128,11 +150,23 @@ def run_simulate_lab(args):
 
     check_output_path(args.output, args.overwrite)
     effects = _parse_effects(args.effect)
+    if args.oversample < 1:
+        raise IPCInputError(f"--oversample {args.oversample}: must be an integer >= 1")
+    coupling = None
+    if args.model is not None:
+        from ..model import CouplingModel
+
+        if args.law is not None:
+            raise IPCInputError(f"--model {args.model} holds the law; do not also give --law")
+        coupling = CouplingModel.load(args.model)
     _init(args)
-    simulate_lab(args.output, effects, readnoise=args.readnoise, seed=args.seed, law=args.law,
-                 pairs=args.pairs, shape=_parse_size(args.size),
+    simulate_lab(args.output, effects, readnoise=args.readnoise, seed=args.seed,
+                 law=args.law or "donlon2018", pairs=args.pairs, shape=_parse_size(args.size),
                  shot_noise=not args.no_shot_noise, nan_fraction=args.nan_fraction,
-                 dtype=np.float32 if args.float32 else np.float64, overwrite=args.overwrite)
-    print(f"wrote {args.output}: {args.pairs} SCENE/MEASURED pairs, IPCLAW {args.law}, "
-          f"READNOIS {args.readnoise:g}")
+                 dtype=np.float32 if args.float32 else np.float64, overwrite=args.overwrite,
+                 oversample=args.oversample, coupling=coupling)
+    lab_law = _ipclaw_written(args.output)
+    print(f"wrote {args.output}: {args.pairs} SCENE/MEASURED pairs, IPCLAW {lab_law}, "
+          f"READNOIS {args.readnoise:g}"
+          + (f", OVERSAMP {args.oversample}" if args.oversample > 1 else ""))
     return 0

@@ -67,7 +67,8 @@ from ..laws import donlon2018
 
 __all__ = ["Param", "Effect", "EFFECTS", "EFFECT_NAMES", "SEPARATION", "DEGENERATE",
            "diffuse", "diffusion_weights", "brighter_fatter", "nonlinearity", "reciprocity",
-           "shift_scene", "derived_params", "contradiction", "NL_REFERENCE", "BF_REFERENCE",
+           "shift_scene", "derived_params", "contradiction", "implausible", "PHYSICAL_LIMITS",
+           "NL_REFERENCE", "BF_REFERENCE",
            "RECIPROCITY_REFERENCE", "LAW_SCALE_DIFF", "LAW_SCALE_LEVEL"]
 
 NL_REFERENCE = 50000.0  # e-: the signal at which the non-linearity deficit is quoted
@@ -239,6 +240,39 @@ def contradiction(effect, params):
     return None
 
 
+# The largest strength a real detector shows, per effect (beyond it a fit is
+# absorbing something else): HgCdTe and CCD response maps (quantum efficiency
+# and gain together) vary by a few per cent RMS; the brighter-fatter effect
+# moves a few per cent of a full pixel's charge (the mean of the x and y
+# deflections at 50 ke-); a read noise is not several times what the
+# detector's own characterisation (READNOIS) says.
+PHYSICAL_LIMITS = {"flat_field": 0.05, "brighter_fatter": 0.10, "excess_read_noise": 3.0}
+
+
+def implausible(effect, params, readnoise=None):
+    """Why fitted ``params`` lie outside the physical range of ``effect``
+    (:data:`PHYSICAL_LIMITS`; for ``excess_read_noise`` a multiple of the
+    header's ``readnoise``), or ``None``. Such a fit is not named: its
+    strength says it absorbs a misfit of another kind."""
+    limit = PHYSICAL_LIMITS.get(effect)
+    if effect == "excess_read_noise" and readnoise:
+        total = math.sqrt(max(readnoise ** 2 + params["excess_variance_e2"], 0.0))
+        if total > limit * readnoise:
+            return (f"a read noise of {total:.1f} e- ({total / readnoise:.1f} times READNOIS; "
+                    f"at most {limit:g} times is plausible)")
+    if effect == "flat_field":
+        rms = math.sqrt(max(params["response_variance"], 0.0))
+        if rms > limit:
+            return (f"a response map of RMS {100 * rms:.1f} % (a real one is at most "
+                    f"{100 * limit:g} %)")
+    if effect == "brighter_fatter":
+        d = 0.5 * (params["deflection_x_at_50ke"] + params["deflection_y_at_50ke"])
+        if d > limit:
+            return (f"a deflection of {100 * d:.1f} % at 50 ke- (a real detector's is at most "
+                    f"{100 * limit:g} %)")
+    return None
+
+
 def _big_g(t):
     """``G(t) = t Phi(t) + phi(t)``, the integral of the normal CDF ``Phi``."""
     return t * ndtr(t) + np.exp(-0.5 * t * t) / math.sqrt(2.0 * math.pi)
@@ -262,24 +296,43 @@ def diffusion_weights(sigma, half):
     return w / w.sum()
 
 
-def diffuse(charge, sigma_px):
+def diffuse(charge, sigma_px, at_centre=False, collect=1):
     """Spread charge generated across each pixel's area by a Gaussian of RMS ``sigma_px``.
 
     Separable and normalised (charge conserved inside the frame); the frame
-    is extended by its edge values, as the scene beyond it is unknown.
+    is extended by its edge values, as the scene beyond it is unknown. With
+    ``at_centre`` the charge is generated at each pixel's centre instead
+    (weights ``Phi((k + 1/2)/sigma) - Phi((k - 1/2)/sigma)``): the picture for a
+    point source narrower than the cell that holds it. With ``collect = N``
+    the cells are sub-pixels and the result is summed over each ``N x N``
+    block (the collecting pixels); the sum along x comes before the
+    spread along y, which then works on a grid ``N`` times smaller.
     """
     from scipy.ndimage import convolve1d
 
+    from .sampling import block_sum_axis
+
     sigma = float(sigma_px)
     if sigma <= 0:
+        if collect > 1:
+            return block_sum_axis(block_sum_axis(charge, collect, -1), collect, -2)
         return charge
-    w = diffusion_weights(sigma, max(2, int(math.ceil(4 * sigma)) + 1))
+    half = max(2, int(math.ceil(4 * sigma)) + 1)
+    if at_centre:
+        k = np.arange(-half, half + 1, dtype=np.float64)
+        w = ndtr((k + 0.5) / sigma) - ndtr((k - 0.5) / sigma)
+        w = w / w.sum()
+    else:
+        w = diffusion_weights(sigma, half)
     out = convolve1d(charge, w, axis=-1, mode="nearest")
+    if collect > 1:
+        out = block_sum_axis(out, collect, -1)
+        return block_sum_axis(convolve1d(out, w, axis=-2, mode="nearest"), collect, -2)
     return convolve1d(out, w, axis=-2, mode="nearest")
 
 
 def brighter_fatter(charge, deflection_x_at_50ke, deflection_y_at_50ke=None, upwind=0.5,
-                    reach=0.0, steps=BF_STEPS):
+                    reach=0.0, steps=BF_STEPS, boundary=None):
     """Collect ``charge`` with pixel boundaries shifted by the charge already collected.
 
     The exposure is integrated in ``steps`` equal slices (midpoint rule).
@@ -303,6 +356,14 @@ def brighter_fatter(charge, deflection_x_at_50ke, deflection_y_at_50ke=None, upw
     plus ``reach`` times the charge of the 4 nearest neighbours, so a long
     edge (many charged neighbours) pushes harder than an isolated pixel.
     Flat fields stay flat; charge is conserved except at the frame edge.
+
+    The arrivals in a swept strip are those of the pixel's area when the
+    light is uniform across it. Where SCENE says how it lies within each
+    pixel, ``boundary`` gives ``{axis: (low, high)}`` for ``axis`` -1 (x)
+    and -2 (y): the charge arriving next to each boundary on its two sides,
+    per pixel width, over the exposure (:func:`~.sampling.boundary_arrivals`),
+    which replace ``a_p`` and ``a_q`` there: light at a pixel's centre is not
+    moved by a boundary that shifts by a fraction of a pixel.
     """
     dx = float(deflection_x_at_50ke)
     dy = dx if deflection_y_at_50ke is None else float(deflection_y_at_50ke)
@@ -325,8 +386,12 @@ def brighter_fatter(charge, deflection_x_at_50ke, deflection_y_at_50ke=None, upw
             lo[axis], hi[axis] = slice(None, -1), slice(1, None)
             lo, hi = tuple(lo), tuple(hi)
             dq = qm[lo] - qm[hi]
-            a_up = np.where(dq > 0, arrive[lo], arrive[hi])
-            swept = (1.0 - w) * 0.5 * (arrive[lo] + arrive[hi]) + w * a_up
+            if boundary is None:
+                a_lo, a_hi = arrive[lo], arrive[hi]
+            else:
+                a_lo, a_hi = (b / steps for b in boundary[axis])
+            a_up = np.where(dq > 0, a_lo, a_hi)
+            swept = (1.0 - w) * 0.5 * (a_lo + a_hi) + w * a_up
             flow = d * norm * dq / BF_REFERENCE * swept
             q[lo] -= flow
             q[hi] += flow

@@ -56,17 +56,23 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ..detector import collect, read_noise, read_out
+from ..errors import GeometryError
 from ..geometry import Geometry
 from ..model import CouplingModel
 from ..laws import ParametricLaw, get_law
 from .effects import (EFFECTS, LAW_SCALE_DIFF, LAW_SCALE_LEVEL, brighter_fatter, diffuse,
                       nonlinearity, reciprocity, shift_scene)
+from .sampling import block_sum, boundary_arrivals, isolated_points, shift_fine
 
-__all__ = ["DetectorModel", "CHAIN_ORDER", "is_constant_law"]
+__all__ = ["DetectorModel", "CHAIN_ORDER", "SUBPIXEL_EFFECTS", "is_constant_law"]
 
 CHAIN_ORDER = ("misregistration", "reciprocity_failure", "charge_diffusion", "dark_current",
                "brighter_fatter", "flat_field", "shot_noise", "ipc", "classical_nonlinearity",
                "read_noise", "excess_read_noise")
+
+# the effects that move charge by a fraction of a pixel: they use a sub-pixel
+# SCENE when there is one (every other stage works on the pixels' totals)
+SUBPIXEL_EFFECTS = frozenset({"misregistration", "charge_diffusion", "brighter_fatter"})
 
 
 def is_constant_law(law):
@@ -116,6 +122,33 @@ class DetectorModel:
             raise ValueError(f"unknown effect(s) {sorted(unknown)}; known: {', '.join(EFFECTS)}")
 
     # -- building ---------------------------------------------------------
+    @classmethod
+    def from_coupling(cls, coupling, readnoise, shot_noise=True):
+        """The starting model of a :class:`~ipc_taichi.model.CouplingModel`
+        (a coupling-model file): its law and edge, and its geometry as the
+        coupling effects it amounts to (``anisotropic_ipc``, ``diagonal_ipc``,
+        ``second_neighbor_ipc``, with absolute couplings at zero signal).
+
+        Raises :class:`~ipc_taichi.errors.GeometryError` for a geometry that is
+        not of that symmetric form.
+        """
+        g = coupling.geometry
+        h, v = g.weight(0, 1), g.weight(1, 0)
+        diag, second = g.weight(1, 1), g.weight(0, 2)
+        if Geometry.terms(h, v, diag, second).weights != g.weights:
+            raise GeometryError("the coupling model's geometry is not symmetric nearest, "
+                                "diagonal and second-neighbour terms (second neighbours "
+                                "equal along x and y): discover cannot start from it")
+        alpha0 = float(coupling.law.alpha(0.0, 0.0))
+        effects = {}
+        if (h, v) != (1.0, 1.0):
+            effects["anisotropic_ipc"] = {"weight_horizontal": h, "weight_vertical": v}
+        if diag:
+            effects["diagonal_ipc"] = {"alpha_diag": diag * alpha0}
+        if second:
+            effects["second_neighbor_ipc"] = {"alpha_second": second * alpha0}
+        return cls(coupling.law, readnoise, shot_noise, effects, coupling.edge)
+
     def with_effects(self, effects):
         """A copy with these ``{name: params}`` replacing or adding to the current ones."""
         merged = {k: dict(v) for k, v in self.effects.items()}
@@ -158,23 +191,61 @@ class DetectorModel:
         return Geometry.terms(horizontal=h, vertical=v, diagonal=diag, second=second)
 
     # -- the chain ----------------------------------------------------------
-    def collected(self, scene):
-        """Expected collected charge (steps 0-4) from the expected scene charge."""
+    def collected(self, scene, oversample=1):
+        """Expected collected charge (steps 0-4) from the expected scene charge.
+
+        With ``oversample = N > 1`` the scene is on the sub-pixel grid of
+        :mod:`.sampling` (shape ``N`` times the pixels'): the shift and the
+        diffusion act there (each sub-pixel's charge moved from where it is
+        generated, then integrated over the collecting pixels), and
+        brighter-fatter takes the charge arriving next to each boundary from
+        it; reciprocity failure acts on the pixels' totals (the sub-pixels
+        of a pixel scaled alike). The result is on the pixel grid.
+        """
+        n = int(oversample)
         c = np.asarray(scene, dtype=np.float64)
         if "misregistration" in self.effects:
             p = self.effects["misregistration"]
-            # the spline undershoots next to sharp features: no negative charge
-            c = np.clip(shift_scene(c, p["shift_y_px"], p["shift_x_px"]), 0.0, None)
+            if n > 1:
+                c = shift_fine(c, n * p["shift_y_px"], n * p["shift_x_px"])
+            else:  # the spline undershoots next to sharp features: no negative charge
+                c = np.clip(shift_scene(c, p["shift_y_px"], p["shift_x_px"]), 0.0, None)
         if "reciprocity_failure" in self.effects:
-            c = reciprocity(c, self._p("reciprocity_failure", "alpha_per_decade"))
+            alpha = self._p("reciprocity_failure", "alpha_per_decade")
+            if n > 1:
+                total = block_sum(c, n)
+                gain = np.divide(reciprocity(total, alpha), total, out=np.ones_like(total),
+                                 where=total > 0)
+                c = c * np.repeat(np.repeat(gain, n, axis=-2), n, axis=-1)
+            else:
+                c = reciprocity(c, alpha)
+        bf = "brighter_fatter" in self.effects
         if "charge_diffusion" in self.effects:
-            c = diffuse(c, self._p("charge_diffusion", "sigma_px"))
+            sigma = self._p("charge_diffusion", "sigma_px")
+            if n > 1:  # a pinhole spot's light starts at its sub-pixel's centre
+                points = isolated_points(c)
+                # collected on the pixels at once, unless brighter-fatter needs the fine grid
+                m = 1 if bf else n
+                c = diffuse(c - points, n * sigma, collect=m) + (
+                    diffuse(points, n * sigma, at_centre=True, collect=m) if points.any()
+                    else 0.0)
+                n = n if bf else 1  # without brighter-fatter: already on the pixels
+            else:
+                c = diffuse(c, sigma)
+        arrivals = None
+        if n > 1:
+            if bf:
+                arrivals = {axis: boundary_arrivals(c, n, axis) for axis in (-1, -2)}
+            c = block_sum(c, n)
         if "dark_current" in self.effects:
             c = c + self._p("dark_current", "dark_e")
         if "brighter_fatter" in self.effects:
             p = self.effects["brighter_fatter"]
+            if arrivals is not None and "dark_current" in self.effects:
+                d = self._p("dark_current", "dark_e")  # dark charge arrives uniformly
+                arrivals = {a: (lo + d, hi + d) for a, (lo, hi) in arrivals.items()}
             c = brighter_fatter(c, p["deflection_x_at_50ke"], p["deflection_y_at_50ke"],
-                                p["upwind"], p["reach"])
+                                p["upwind"], p["reach"], boundary=arrivals)
         return c
 
     def readout(self, signal):
@@ -193,9 +264,9 @@ class DetectorModel:
         p = dict(self.effects["classical_nonlinearity"])
         return lambda m: nonlinearity(m, p["deficit_at_50ke"], p["cubic_term"])
 
-    def expected(self, scene):
-        """Expected measured frame."""
-        return self.readout(self.collected(scene))
+    def expected(self, scene, oversample=1):
+        """Expected measured frame (``oversample``: see :meth:`collected`)."""
+        return self.readout(self.collected(scene, oversample))
 
     def response_variance(self):
         """Variance of the per-pixel response (``flat_field``), 0 when absent."""
@@ -206,8 +277,9 @@ class DetectorModel:
         extra = float(self.effects.get("excess_read_noise", {}).get("excess_variance_e2", 0.0))
         return max(float(self.readnoise) ** 2 + extra, 1e-6)
 
-    def predict_parts(self, scene):
-        """``(mean, independent variance, response scale)``.
+    def predict_parts(self, scene, oversample=1):
+        """``(mean, independent variance, response scale)`` on the pixel grid
+        (``oversample``: see :meth:`collected`).
 
         The independent variance is shot and read noise. The response map
         (``flat_field``) multiplies the collected charge, so a map of
@@ -216,7 +288,7 @@ class DetectorModel:
         shared by every pair of a file, so it is kept apart (see the module
         docstring).
         """
-        c = self.collected(scene)
+        c = self.collected(scene, oversample)
         mean = self.readout(c)
         var = np.full(mean.shape, self.read_variance())
         shot, scale2 = self._propagated_variances(c, mean)
@@ -224,9 +296,9 @@ class DetectorModel:
             var = var + shot
         return mean, var, np.sqrt(scale2)
 
-    def predict(self, scene):
+    def predict(self, scene, oversample=1):
         """Expected value and variance per pixel, ``(mean, variance)``."""
-        mean, var, a = self.predict_parts(scene)
+        mean, var, a = self.predict_parts(scene, oversample)
         u = self.response_variance()
         return mean, (var + u * a * a if u > 0 else var)
 
@@ -259,13 +331,14 @@ class DetectorModel:
             shot += np.where(spread > 0, dm * dm / np.where(spread > 0, spread, 1.0), 0.0)
         return shot, scale2
 
-    def simulate(self, scene, rng):
+    def simulate(self, scene, rng, oversample=1):
         """A noisy measured frame (seeded ``numpy.random.Generator``).
 
         A 3-D ``scene`` is a stack of pairs of one file: they share one
         response map (``flat_field``), as the pairs of a file share pixels.
+        ``oversample``: see :meth:`collected`.
         """
-        c = self.collected(scene)
+        c = self.collected(scene, oversample)
         u = self.response_variance()
         if u > 0:
             c = c * (1.0 + math.sqrt(u) * rng.standard_normal(c.shape[-2:]))

@@ -32,7 +32,10 @@ from ..errors import IPCInputError
 from ..fitsio import atomic_output
 from .diagnostics import SIGNAL_BINS
 
-__all__ = ["write_report", "write_figures", "to_json", "summary_line"]
+__all__ = ["write_report", "write_figures", "to_json", "summary_line", "json_diagnostics",
+           "describe_unexplained", "SUBPIXEL_LIMITS", "UNEXPLAINED_Z"]
+
+UNEXPLAINED_Z = 5.0  # a pattern is described when it stands out at 5 sigma
 
 FIGURES = ("gap_per_step.png", "stacked_windows.png", "residual_vs_signal.png",
            "residual_map.png", "residuals_by_probe.png")
@@ -222,3 +225,140 @@ def write_figures(discovery, directory):
     _save(fig, paths[4])
     plt.close(fig)
     return paths
+
+
+def json_diagnostics(d):
+    def clean(a):
+        return [None if not np.isfinite(v) else round(float(v), 4) for v in np.ravel(a)]
+
+    def num(v):
+        return None if not np.isfinite(v) else round(float(v), 4)
+
+    out = {"stack_mean_residual": [[clean(row) for row in s] for s in d["stacks"]],
+           "stack_counts": [int(c) for c in d["counts"]],
+           "signal_bin_centres": clean(d["signal"]),
+           "mean_residual_vs_signal": clean(d["mean_residual"]),
+           "chi2_vs_signal": clean(d["mean_residual2"]),
+           "pixels_per_signal_bin": [int(c) for c in d["signal_counts"]],
+           "residuals_by_probe": {k: {w: {q: (num(x) if isinstance(x, float) else x)
+                                          for q, x in part.items()}
+                                      for w, part in v.items()}
+                                  for k, v in d["by_probe"].items()},
+           "dipole_x": {"mean": num(d["dipoles"]["x"][0]), "z": num(d["dipoles"]["x"][1])},
+           "dipole_y": {"mean": num(d["dipoles"]["y"][0]), "z": num(d["dipoles"]["y"][1])},
+           "after_image": {"mean": num(d["after_images"][0]), "z": num(d["after_images"][1]),
+                           "n": d["after_images"][2]},
+           "pair_correlation": {"mean": num(d["pair_correlation"][0]),
+                                "z": num(d["pair_correlation"][1])}}
+    if d.get("floor_chi2_vs_signal") is not None:
+        out["floor_chi2_vs_signal"] = clean(d["floor_chi2_vs_signal"])
+    return out
+
+
+# What SCENE cannot tell the model, per effect in the final model: SCENE holds
+# each pixel's integrated charge, not how the light lies within the pixel, and
+# these effects move charge by less than a pixel (measured in docs/discover.md).
+SUBPIXEL_LIMITS = {
+    "misregistration":
+        "the fitted shift moves SCENE by interpolating its pixel values, exact only for "
+        "light smooth on the pixel scale; how the light lies within a pixel is not in "
+        "SCENE (a star and a uniform 1x1 source of the same pixel values shift "
+        "differently), so without the sources' profiles no interpolation shifts stars "
+        "sharper than about 2.2 px FWHM, single-pixel events and sharp edges exactly (a "
+        "0.3 px shift of a 1.8 px FWHM star leaves 1.8 % of its peak with a spline and "
+        "with a band-limited shift alike): what remains here may be that limit of the "
+        "data, not a missing effect; a SCENE with OVERSAMP (the light on a sub-pixel grid) "
+        "lifts it",
+    "charge_diffusion":
+        "the diffusion model spreads charge generated uniformly across each pixel (right "
+        "for single-pixel events and flat areas); light that peaks inside its pixel (a "
+        "star) keeps more of it, so where the data's diffusion starts from the photons' "
+        "true positions, star centres are left above the model (sigma 0.22 px, a 1.8 px "
+        "FWHM star: the model's peak 11 % low) and SCENE cannot say which picture holds "
+        "for which pixel: what remains at star centres may be that limit of the data; a "
+        "SCENE with OVERSAMP (the light on a sub-pixel grid) lifts it",
+    "brighter_fatter":
+        "the boundary-shift picture moves the charge that arrives next to each pixel "
+        "boundary, taken as uniform across the pixel; light concentrated inside its pixel "
+        "(a pinhole spot, a star's core) arrives mostly away from the boundaries and is "
+        "moved less, and SCENE does not say where it lies: what remains at hot pixels and "
+        "star centres may be that limit of the data; a SCENE with OVERSAMP (the light on a "
+        "sub-pixel grid) lifts it",
+}
+
+
+def describe_unexplained(d, rejected=(), effects=(), pixel_totals=None, n_pairs=None,
+                         below_floor=0.0):
+    """Words a detector scientist can act on for what the final model leaves.
+
+    ``d`` is the final diagnostics (with ``floor_chi2_vs_signal``, the
+    floor simulations' chi-square per signal bin); ``rejected`` the
+    candidates that were fitted but not named, ``(effect, why)``;
+    ``effects`` the final model's effects, whose known limits
+    (:data:`SUBPIXEL_LIMITS`) are named where SCENE held pixel totals
+    (``pixel_totals``: those pairs' EXTVER, ``None`` = all of the
+    ``n_pairs``); ``below_floor`` the floor scatters by which the final gap
+    lies *below* the floor (a variance inflated somewhere). Only patterns
+    that stand out at :data:`UNEXPLAINED_Z` sigma are described.
+    """
+    out = []
+    if below_floor > 3.0:
+        out.append(f"the final gap lies {below_floor:.1f} floor scatters below the floor: the "
+                   "model's variance is inflated (a variance effect absorbing a wrong mean, or "
+                   "a noise parameter fitted too large)")
+    n = d["signal_counts"]
+    floor_bins = d.get("floor_chi2_vs_signal")
+    expect = floor_bins if floor_bins is not None else np.ones(len(n))
+    z_var = (d["mean_residual2"] - expect) / np.sqrt(2.0 / np.maximum(n, 1))
+    z_mean = d["mean_residual"] * np.sqrt(np.maximum(n, 1))
+    centres = d["signal"]
+    ok = (n > 30) & np.isfinite(z_var) & np.isfinite(z_mean)
+    for axis in ("x", "y"):
+        m, z = d["dipoles"][axis]
+        if np.isfinite(z) and abs(z) > UNEXPLAINED_Z:
+            out.append(f"dipoles aligned with {axis} around every source (mean "
+                       f"{m:+.2f} sigma per side): SCENE and MEASURED offset along {axis}?")
+    m, z, cnt = d["after_images"]
+    if np.isfinite(z) and z > UNEXPLAINED_Z:
+        out.append(f"positive residual where the previous pair's SCENE was bright ({m:+.2f} "
+                   f"sigma per pixel over {cnt} pixels, {z:.0f} standard errors): an "
+                   "after-image of earlier exposures (persistence or another memory effect)")
+    m, z = d["pair_correlation"]
+    if np.isfinite(z) and z > UNEXPLAINED_Z:
+        out.append(f"residuals repeat pixel by pixel across pairs (mean product {m:.3f}): "
+                   "a fixed per-pixel pattern")
+    if pixel_totals is None or pixel_totals:
+        which = "" if pixel_totals is None or len(pixel_totals) == n_pairs else (
+            " (pairs whose SCENE holds pixel totals, EXTVER "
+            + ", ".join(str(v) for v in pixel_totals) + ")")
+        out += [f"{name} is in the model, but {SUBPIXEL_LIMITS[name]}{which}"
+                for name in effects if name in SUBPIXEL_LIMITS]
+    var_bad = ok & (z_var > UNEXPLAINED_Z) & (np.abs(z_mean) < np.maximum(3.0, 0.3 * z_var))
+    if var_bad.any():
+        lo, hi = centres[var_bad].min(), centres[var_bad].max()
+        low_only = hi < 3000
+        shape = ("at low signal" if low_only else "growing with signal"
+                 if z_var[var_bad][-1] > z_var[var_bad][0] else "across signal levels")
+        out.append(f"variance excess {shape} ({lo:.0f}-{hi:.0f} e-; chi-square up to "
+                   f"{np.nanmax(d['mean_residual2'][var_bad]):.2f} per pixel), zero mean")
+    mean_bad = ok & (np.abs(z_mean) > UNEXPLAINED_Z)
+    if mean_bad.any():
+        sign = np.sign(np.sum(z_mean[mean_bad]))
+        lo, hi = centres[mean_bad].min(), centres[mean_bad].max()
+        out.append(f"mean residual {'positive' if sign > 0 else 'negative'} at "
+                   f"{lo:.0f}-{hi:.0f} e- (measured {'above' if sign > 0 else 'below'} "
+                   "the model there)")
+    for kind, parts in d["by_probe"].items():
+        c, r = parts["centre"], parts["ring"]
+        for where, part in (("centres", c), ("surroundings", r)):
+            if part["n"] > 5 and np.isfinite(part["z"]) and abs(part["z"]) > UNEXPLAINED_Z:
+                out.append(f"{kind.replace('_', ' ')}: {where} {part['mean']:+.2f} sigma on "
+                           f"average ({part['n']} pixels, chi-square {part['chi2']:.2f})")
+    for name, why in rejected:
+        out.append(f"not named {name}: {why}")
+    if not out:
+        out.append("an excess spread over the frame without a localised pattern "
+                   "(no signal range, probe type or direction stands out at "
+                   f"{UNEXPLAINED_Z:g} sigma)")
+    return out
+

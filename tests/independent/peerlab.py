@@ -6,9 +6,14 @@ physics is GalSim's, a peer simulator, and where GalSim has no such effect,
 plain NumPy with forms that differ from the project's.
 
 - Scene: a uniform background, flat rectangular patches, hot pixels (a
-  uniform 1x1-pixel source) and Moffat stars (GalSim ``drawImage``, pixel
-  integrated), on a grid so they stay apart. A "sky" scene has only
-  background and stars.
+  uniform 1x1-pixel source, "top-hat", or all the light at the pixel centre,
+  "point", as a pinhole projector makes them) and Moffat stars (GalSim
+  ``drawImage``, pixel integrated), on a grid so they stay apart. A "sky"
+  scene has only background and stars.
+- SCENE sampling: with ``oversample = N`` SCENE is written ``N`` times finer
+  than MEASURED (``OVERSAMP = N``): stars drawn by GalSim at ``scale = 1/N``,
+  boxes by their exact overlap with each sub-pixel, a point's light in the
+  sub-pixel that holds it.
 - Collection: with ``silicon`` a GalSim ``SiliconSensor`` photon-shoots the
   scene: brighter-fatter from the field of the charge already collected
   (pixel boundaries computed from a solved electrostatic model) and/or
@@ -31,7 +36,9 @@ plain NumPy with forms that differ from the project's.
 - Non-linearity: GalSim's ``applyNonlinearity`` with ``x - beta x^2``.
 - Read noise: GalSim's ``GaussianNoise``, optionally larger than ``READNOIS``.
 - Misregistration: MEASURED made from the scene re-drawn with every source
-  displaced by ``shift`` pixels, while SCENE holds the undisplaced one.
+  displaced by ``shift`` pixels, while SCENE holds the undisplaced one; with
+  ``shift_hot = False`` the hot pixels (the detector's own) stay in place
+  while the sky moves.
 
 The true values are returned to the caller (the test); the file holds only
 what the format allows.
@@ -51,11 +58,13 @@ def _moffat(flux, fwhm):
     return galsim.Moffat(beta=3.5, fwhm=fwhm, flux=flux)
 
 
-def draw_scene(n, rng, sky=False, levels=(4000.0, 15000.0, 30000.0, 45000.0)):
+def draw_scene(n, rng, sky=False, levels=(4000.0, 15000.0, 30000.0, 45000.0), hot="tophat"):
     """A list of scene elements ``(kind, y, x, a, b)`` for an ``n`` x ``n`` frame.
 
     kinds: ``background`` (a = e-), ``patch`` (y, x corner, a = side, b = e-),
-    ``hot`` (a = e-), ``star`` (a = flux e-, b = FWHM px).
+    ``hot`` (a = e-, uniform across the pixel), ``point`` (a = e-, all at the
+    pixel centre), ``star`` (a = flux e-, b = FWHM px). ``hot``: the hot
+    pixels' kind, ``"tophat"``, ``"point"`` or ``"mixed"`` (alternating).
     """
     out = [("background", 0, 0, float(rng.uniform(80, 150)), 0.0)]
     cells = [(cy, cx) for cy in range(n // CELL) for cx in range(n // CELL)]
@@ -71,7 +80,9 @@ def draw_scene(n, rng, sky=False, levels=(4000.0, 15000.0, 30000.0, 45000.0)):
         if not sky and u < 0.45:
             y, x = y0 + int(rng.integers(1, 7)), x0 + int(rng.integers(1, 7))
             level = float(math.exp(rng.uniform(math.log(2e3), math.log(6e4))))
-            out.append(("hot", y, x, level, 0.0))
+            nhot = sum(e[0] in ("hot", "point") for e in out)
+            kind = {"tophat": "hot", "point": "point"}.get(hot, ("hot", "point")[nhot % 2])
+            out.append((kind, y, x, level, 0.0))
         else:
             fwhm = float(rng.uniform(1.8, 2.8))
             peak = float(math.exp(rng.uniform(math.log(1e3), math.log(5e4))))
@@ -81,48 +92,63 @@ def draw_scene(n, rng, sky=False, levels=(4000.0, 15000.0, 30000.0, 45000.0)):
     return out
 
 
-def expected(elements, n, shift=(0.0, 0.0)):
-    """The pixel-integrated expected charge of the elements, displaced by ``shift``."""
-    dy, dx = shift
-    img = galsim.ImageD(n, n, xmin=0, ymin=0, scale=1.0)
-    arr = np.zeros((n, n))
-    edges = np.arange(n + 1) - 0.5
+def expected(elements, n, shift=(0.0, 0.0), oversample=1, shift_hot=True):
+    """The expected charge of the elements, displaced by ``shift``, integrated
+    over each pixel (``oversample = 1``) or over each of its ``N x N``
+    sub-pixels (``N`` times finer grid; sub-pixel ``i`` covers
+    ``[i/N - 1/2, (i+1)/N - 1/2]`` in pixel coordinates)."""
+    f = int(oversample)
+    m = n * f
+    img = galsim.ImageD(m, m, xmin=0, ymin=0, scale=1.0 / f)
+    arr = np.zeros((m, m))
+    edges = np.arange(m + 1) / f - 0.5
     for kind, y, x, a, b in elements:
+        dy, dx = shift if (shift_hot or kind not in ("hot", "point")) else (0.0, 0.0)
         if kind == "background":
-            arr += a
+            arr += a / (f * f)
         elif kind in ("patch", "hot"):
             side, level = (a, b) if kind == "patch" else (1, a)
-            # exact overlap of a displaced box with each pixel
+            # exact overlap of a displaced box with each (sub-)pixel
             oy = np.clip(np.minimum(edges[1:], y - 0.5 + side + dy)
                          - np.maximum(edges[:-1], y - 0.5 + dy), 0, None)
             ox = np.clip(np.minimum(edges[1:], x - 0.5 + side + dx)
                          - np.maximum(edges[:-1], x - 0.5 + dx), 0, None)
             arr += level * np.outer(oy, ox)
+        elif kind == "point":
+            iy = int(math.floor((y + dy + 0.5) * f + 1e-9))
+            ix = int(math.floor((x + dx + 0.5) * f + 1e-9))
+            arr[iy, ix] += a
         elif kind == "star":
             img.setZero()
-            _moffat(a, b).drawImage(img, center=galsim.PositionD(x + dx, y + dy),
+            _moffat(a, b).drawImage(img, center=galsim.PositionD((x + dx + 0.5) * f - 0.5,
+                                                                 (y + dy + 0.5) * f - 0.5),
                                     method="auto")
             arr += img.array
     return arr
 
 
-def photon_shoot(elements, n, sensor, seed):
-    """Collected charge: every element photon-shot through a GalSim ``sensor``."""
+def photon_shoot(elements, n, sensor, seed, shift=(0.0, 0.0), shift_hot=True):
+    """Collected charge: every element photon-shot through a GalSim ``sensor``,
+    displaced by ``shift``."""
     img = galsim.ImageF(n, n, xmin=0, ymin=0, scale=1.0)
     ud = galsim.BaseDeviate(seed)
     order = sorted(elements, key=lambda e: {"background": 0, "patch": 1, "star": 2,
-                                            "hot": 3}[e[0]])
+                                            "hot": 3, "point": 3}[e[0]])
     for kind, y, x, a, b in order:
+        dy, dx = shift if (shift_hot or kind not in ("hot", "point")) else (0.0, 0.0)
         if kind == "background":
             prof, cy, cx = galsim.Box(n, n, flux=a * n * n), (n - 1) / 2, (n - 1) / 2
         elif kind == "patch":
             prof, cy, cx = galsim.Box(a, a, flux=b * a * a), y + (a - 1) / 2, x + (a - 1) / 2
         elif kind == "hot":
             prof, cy, cx = galsim.Box(1, 1, flux=a), y, x
+        elif kind == "point":
+            prof, cy, cx = galsim.DeltaFunction(flux=a), y, x
         else:
             prof, cy, cx = _moffat(a, b), y, x
         prof.drawImage(img, method="phot", sensor=sensor, add_to_image=True, rng=ud,
-                       center=galsim.PositionD(cx, cy), poisson_flux=True, maxN=200000)
+                       center=galsim.PositionD(cx + dx, cy + dy), poisson_flux=True,
+                       maxN=200000)
     return img.array.astype(np.float64)
 
 
@@ -158,7 +184,8 @@ def squares_flow(charge, loss_at_50ke):
 def make_file(path, n=64, pairs=2, seed=0, readnoise=12.0, true_readnoise=None, sky=False,
               silicon=None, reciprocity_alpha=0.0, gain_rms=0.0, persistence=(),
               diagonal=0.0, nonlinearity_beta=0.0, shift=(0.0, 0.0),
-              levels=(4000.0, 15000.0, 30000.0, 45000.0), mc_diffusion=0.0, squares_bf=0.0):
+              levels=(4000.0, 15000.0, 30000.0, 45000.0), mc_diffusion=0.0, squares_bf=0.0,
+              hot="tophat", oversample=1, shift_hot=True):
     """Write a lab file and return what was hidden in it.
 
     Parameters
@@ -176,6 +203,14 @@ def make_file(path, n=64, pairs=2, seed=0, readnoise=12.0, true_readnoise=None, 
         ``x - beta x^2`` applied after IPC.
     shift : (dy, dx)
         MEASURED is made from the scene displaced by this many pixels.
+    hot : str
+        The hot pixels' light: ``"tophat"`` (uniform across the pixel),
+        ``"point"`` (at its centre) or ``"mixed"``.
+    oversample : int
+        SCENE sub-pixels per pixel along each axis (``OVERSAMP``).
+    shift_hot : bool
+        Whether the hot pixels move with ``shift`` (False: a sky displaced
+        under the detector's fixed hot pixels).
     """
     rng = np.random.default_rng(seed)
     rn = readnoise if true_readnoise is None else true_readnoise
@@ -190,12 +225,12 @@ def make_file(path, n=64, pairs=2, seed=0, readnoise=12.0, true_readnoise=None, 
     hdus[0].header["SHOTNOIS"] = True
     hdus[0].header["IPCLAW"] = f"constant:{ALPHA}"
     for k in range(pairs):
-        elements = draw_scene(n, rng, sky=sky, levels=levels)
-        scene = expected(elements, n)
+        elements = draw_scene(n, rng, sky=sky, levels=levels, hot=hot)
+        scene = expected(elements, n, oversample=oversample)
         if sensor is not None:
-            charge = photon_shoot(elements, n, sensor, seed * 100 + k + 1)
+            charge = photon_shoot(elements, n, sensor, seed * 100 + k + 1, shift, shift_hot)
         else:
-            light = expected(elements, n, shift)
+            light = expected(elements, n, shift, shift_hot=shift_hot)
             img = galsim.ImageD(light, xmin=0, ymin=0, scale=1.0)
             if reciprocity_alpha:
                 img.addReciprocityFailure(exp_time=1.0, alpha=reciprocity_alpha, base_flux=1.0)
@@ -221,6 +256,8 @@ def make_file(path, n=64, pairs=2, seed=0, readnoise=12.0, true_readnoise=None, 
         for name, data in (("SCENE", scene.astype(">f4")), ("MEASURED", measured)):
             h = fits.ImageHDU(data, name=name)
             h.header["EXTVER"] = k + 1
+            if name == "SCENE" and oversample > 1:
+                h.header["OVERSAMP"] = int(oversample)
             hdus.append(h)
     fits.HDUList(hdus).writeto(path, overwrite=True)
-    return {"readnoise": rn, "gain_rms": gain_rms, "shift": shift}
+    return {"readnoise": rn, "gain_rms": gain_rms, "shift": shift, "oversample": oversample}

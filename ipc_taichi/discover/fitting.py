@@ -1,0 +1,319 @@
+"""Fitting the parameters of a detector model to a lab file.
+
+Mean parameters (:func:`fit_parameters`) are fitted by least squares with the
+variance held fixed; noise parameters (:func:`fit_noise`) by the Gaussian
+likelihood with the mean held fixed. :func:`refit_all` alternates the two;
+:func:`prune` drops an effect whose work a later one does; :func:`fit_candidate`
+fits one effect of the vocabulary (with its near-degenerate partners already
+in the model) and returns its evidence, ``delta BIC = -2 delta lnL - k ln n``.
+
+Uncertainties are from the Gauss-Newton covariance ``(J^T J)^-1`` of the
+whitened residuals, inflated by the reduced chi-square when it exceeds 1
+(mean effects), or from the curvature of the likelihood (noise effects).
+"""
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+from scipy.optimize import least_squares, minimize
+
+from ..errors import GeometryError, LawError
+from .blocks import PairBlocks
+from .effects import DEGENERATE, EFFECTS, derived_params
+from .model import DetectorModel, is_constant_law
+
+__all__ = ["FitResult", "fit_parameters", "fit_noise", "refit_all", "prune", "fit_candidate",
+           "full_evidence", "params_report", "sds_of", "chi2_of", "candidates", "partners",
+           "is_noise_effect", "EVIDENCE_THRESHOLD"]
+
+EVIDENCE_THRESHOLD = 25.0  # delta BIC; null simulations give < 0 (see docs/discover.md)
+_FAILED = 1e6  # whitened residual returned for a parameter set the engine rejects
+
+
+def is_noise_effect(name):
+    return EFFECTS[name].stage == "variance"
+
+
+
+@dataclass
+class FitResult:
+    model: DetectorModel
+    chi2: float
+    values: dict            # {(effect, param): value}
+    errors: dict            # {(effect, param): 1-sigma}
+    cov: np.ndarray
+    keys: list
+    nfev: int = 0
+
+
+def _with_values(model, keys, x):
+    changes = {}
+    for (effect, name), value in zip(keys, x):
+        changes.setdefault(effect, dict(model.effects.get(effect, {})))[name] = float(value)
+    return model.with_effects(changes)
+
+
+def _spec(key):
+    return next(p for p in EFFECTS[key[0]].params if p.name == key[1])
+
+
+def fit_parameters(frames, model, keys, sds, max_nfev=40):
+    """Least-squares fit of the mean parameters ``keys`` = ``[(effect, param), ...]``.
+
+    The other parameters and the noise (``sds``, per block) stay fixed.
+    """
+    specs = [_spec(k) for k in keys]
+    x0 = np.array([model.effects[e][n] for e, n in keys], dtype=np.float64)
+    lower = np.array([p.lower for p in specs])
+    upper = np.array([p.upper for p in specs])
+    scale = np.array([p.scale for p in specs])
+    cache = {}
+
+    def resid(x):
+        key = tuple(np.round(x, 15))
+        if key not in cache:
+            try:
+                r = frames.whitened(_with_values(model, keys, x), sds)
+            except (LawError, GeometryError):
+                r = np.full(frames.n, _FAILED)
+            if len(cache) > 64:
+                cache.clear()
+            cache[key] = r
+        return cache[key]
+
+    def jac(x):
+        f0 = resid(x)
+        cols = []
+        for i in range(len(x)):
+            h = 0.01 * scale[i]
+            if x[i] + h > upper[i]:
+                h = -h
+            xp = x.copy()
+            xp[i] += h
+            cols.append((resid(xp) - f0) / h)
+        return np.column_stack(cols)
+
+    # a coarse scan per parameter (multiples of its scale, both signs) picks the
+    # start: far from the truth the chi-square is strongly curved (a blur of
+    # 0.2 px moves a third of a hot pixel's charge) and a trust-region step
+    # from "off" can stall at the bound
+    x0 = np.clip(x0, lower, upper)
+    for i in range(len(x0)):
+        if not specs[i].scan:
+            continue
+        trials = [x0[i]] + [x0[i] + sgn * m * scale[i] for m in (1, 4, 16, 64) for sgn in (1, -1)]
+        trials = [t for t in trials if lower[i] <= t <= upper[i]]
+        costs = []
+        for t in trials:
+            xt = x0.copy()
+            xt[i] = t
+            costs.append(float(np.sum(resid(xt) ** 2)))
+        x0[i] = trials[int(np.argmin(costs))]
+    res = least_squares(resid, x0, jac=jac, bounds=(lower, upper), x_scale=scale,
+                        method="trf", xtol=1e-6, ftol=1e-9, gtol=1e-10, max_nfev=max_nfev)
+    chi2 = float(np.sum(res.fun ** 2))
+    jm = jac(res.x)
+    dof = max(frames.n - len(keys), 1)
+    try:
+        cov = np.linalg.inv(jm.T @ jm) * max(1.0, chi2 / dof)
+    except np.linalg.LinAlgError:
+        cov = np.full((len(keys), len(keys)), np.inf)
+    errors = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    return FitResult(_with_values(model, keys, res.x), chi2,
+                     dict(zip(keys, map(float, res.x))), dict(zip(keys, map(float, errors))),
+                     cov, list(keys), res.nfev)
+
+
+def fit_noise(frames, model, keys, parts):
+    """Maximum-likelihood fit of the noise parameters ``keys`` with the mean fixed.
+
+    ``parts`` is the model's prediction; only the response variance
+    (``flat_field``) and the read variance (``excess_read_noise``) change,
+    so each evaluation is arithmetic on fixed arrays. Returns a
+    :class:`FitResult` whose ``chi2`` is the deviance.
+    """
+    specs = [_spec(k) for k in keys]
+    scale = np.array([p.scale for p in specs])
+    bounds = [(p.lower / s, p.upper / s) for p, s in zip(specs, scale)]
+    base_read = model.read_variance() - float(
+        model.effects.get("excess_read_noise", {}).get("excess_variance_e2", 0.0))
+    x0 = np.array([model.effects[e][n] for e, n in keys]) / scale
+
+    def dev(z):
+        x = dict(zip(keys, z * scale))
+        u = x.get(("flat_field", "response_variance"), model.response_variance())
+        e = x.get(("excess_read_noise", "excess_variance_e2"),
+                  model.read_variance() - base_read)
+        return frames.deviance(model, parts, u, max(base_read + e, 1e-6))
+
+    best = minimize(dev, x0, method="L-BFGS-B", bounds=bounds)
+    z = best.x
+    # curvature of the deviance: the Fisher information is half of it
+    k = len(z)
+    hess = np.zeros((k, k))
+    h = 0.5
+    for i in range(k):
+        for j in range(k):
+            zs = []
+            for si, sj in ((1, 1), (1, -1), (-1, 1), (-1, -1)):
+                zz = z.copy()
+                zz[i] += si * h
+                zz[j] += sj * h
+                zs.append(dev(np.clip(zz, [b[0] for b in bounds], [b[1] for b in bounds])))
+            hess[i, j] = (zs[0] - zs[1] - zs[2] + zs[3]) / (4 * h * h)
+    try:
+        cov = np.linalg.inv(0.5 * hess) * np.outer(scale, scale)
+    except np.linalg.LinAlgError:
+        cov = np.full((k, k), np.inf)
+    errors = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    x = z * scale
+    return FitResult(_with_values(model, keys, x), float(best.fun),
+                     dict(zip(keys, map(float, x))), dict(zip(keys, map(float, errors))),
+                     cov, list(keys), int(best.nfev))
+
+
+def sds_of(model, parts):
+    return [np.sqrt(v) for v in PairBlocks.total_variance(model, parts)]
+
+
+def chi2_of(frames, model, sds):
+    r = frames.whitened(model, sds)
+    return float(r @ r)
+
+
+
+def candidates(model):
+    out = []
+    for name in EFFECTS:
+        if name in model.effects:
+            continue
+        if name == "signal_dependent_ipc" and not is_constant_law(model.law):
+            continue
+        out.append(name)
+    return out
+
+
+def partners(name, model):
+    """Effects in the model that are near-degenerate with ``name`` (refitted with it)."""
+    return [e for e in model.effects if frozenset({name, e}) in DEGENERATE
+            and is_noise_effect(e) == is_noise_effect(name)]
+
+
+
+def refit_all(frames, model, passes=2):
+    """Refit every parameter of the model: the mean parameters with the
+    variance fixed, then the noise parameters with the mean fixed, updating
+    the propagated variance between passes."""
+    mean_keys = [(e, p.name) for e in model.effects for p in EFFECTS[e].params
+                 if not is_noise_effect(e)]
+    noise_keys = [(e, p.name) for e in model.effects for p in EFFECTS[e].params
+                  if is_noise_effect(e)]
+    results = []
+    for _ in range(passes):
+        results = []
+        parts = frames.predict(model)
+        if mean_keys:
+            r = fit_parameters(frames, model, mean_keys, sds_of(model, parts), max_nfev=60)
+            model = r.model
+            results.append(r)
+            parts = frames.predict(model)
+        if noise_keys:
+            r = fit_noise(frames, model, noise_keys, parts)
+            model = r.model
+            results.append(r)
+        if not mean_keys:
+            break
+    keys = [k for r in results for k in r.keys]
+    cov = np.zeros((len(keys), len(keys)))
+    i = 0
+    for r in results:
+        n = len(r.keys)
+        cov[i:i + n, i:i + n] = r.cov
+        i += n
+    values = {k: v for r in results for k, v in r.values.items()}
+    errors = {k: v for r in results for k, v in r.errors.items()}
+    return FitResult(model, results[-1].chi2, values, errors, cov, keys)
+
+
+def prune(frames, model, threshold=EVIDENCE_THRESHOLD, keep=()):
+    """Drop the effects whose removal no longer costs evidence.
+
+    After a later effect joins and every parameter is refitted, an earlier
+    one may fall back to "off" (its parameters at their "off" values) or
+    to a value that the data no longer need: its work is now done by the
+    newcomer. For each effect of ``model`` not in ``keep``, the Gaussian
+    likelihood (:meth:`PairBlocks.deviance`, mean and variance recomputed) of
+    the model without it is compared with the full model's: it is dropped
+    when ``delta BIC = -2 delta lnL - k ln n`` of keeping it is at or below
+    ``threshold``, the same bar an effect must pass to be added. The
+    weakest is dropped first and the rest are judged again.
+
+    Returns
+    -------
+    (DetectorModel, list)
+        The pruned model and ``[(effect, params, delta BIC of keeping it)]``.
+    """
+    ln_n = math.log(frames.n)
+    pruned = []
+    while True:
+        dev_full = frames.deviance(model, frames.predict(model))
+        worth = {}
+        for name in model.effects:
+            if name in keep:
+                continue
+            without = replace(model, effects={e: dict(p) for e, p in model.effects.items()
+                                              if e != name})
+            k = len(EFFECTS[name].params)
+            worth[name] = frames.deviance(without, frames.predict(without)) - dev_full - k * ln_n
+        if not worth:
+            return model, pruned
+        weakest = min(worth, key=worth.get)
+        if worth[weakest] > threshold:
+            return model, pruned
+        pruned.append((weakest, dict(model.effects[weakest]), float(worth[weakest])))
+        model = replace(model, effects={e: dict(p) for e, p in model.effects.items()
+                                        if e != weakest})
+
+
+def params_report(result, effect, readnoise=None):
+    keys = [k for k in result.keys if k[0] == effect]
+    params = {n: result.values[(e, n)] for e, n in keys}
+    errors = {n: result.errors[(e, n)] for e, n in keys}
+    idx = [result.keys.index(k) for k in keys]
+    extra, extra_err = derived_params(effect, params, cov=result.cov[np.ix_(idx, idx)],
+                                      readnoise=readnoise)
+    params.update(extra)
+    errors.update(extra_err)
+    return params, errors
+
+
+
+def full_evidence(frames, fitted, dev_now, k, ln_n):
+    """delta BIC of a fitted candidate by the full Gaussian likelihood: its mean
+    *and* its propagated variance updated (the fits hold the variance fixed).
+
+    Reported beside near-degenerate alternatives, not used to name: it tells an
+    effect before shot noise (brighter-fatter moves charge that then has its
+    own Poisson noise, so the neighbours' variance grows) from one after it
+    (a coupling moves noise along with the charge), but it is small (-2 to +54 on
+    80x80 frames at a 1-2 % deflection, docs/discover.md) and it calls a
+    flow computed from the collected charge a coupling, which in its noise it is.
+    """
+    return dev_now - frames.deviance(fitted, frames.predict(fitted)) - k * ln_n
+
+
+def fit_candidate(frames, model, name, parts, sds, chi2_now, dev_now, ln_n):
+    """Fit one candidate (with its near-degenerate partners); ``(evidence, delta, k, fit)``."""
+    trial = model.with_effects({name: model.starting_params(name)})
+    keys = [(name, p.name) for p in EFFECTS[name].params]
+    k = len(keys)
+    keys += [(e, p.name) for e in partners(name, model) for p in EFFECTS[e].params]
+    if is_noise_effect(name):
+        fit = fit_noise(frames, trial, keys, parts)
+        delta = dev_now - fit.chi2
+    else:
+        fit = fit_parameters(frames, trial, keys, sds)
+        delta = chi2_now - fit.chi2
+    return delta - k * ln_n, delta, k, fit
+

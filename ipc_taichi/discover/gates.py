@@ -1,0 +1,158 @@
+"""The naming gates: what a fitted candidate must show to be named.
+
+A fit can lower the gap without being the effect it is named after. The
+gates here ask each candidate for its own signature: an anisotropy or a
+signal dependence significant by itself (:func:`signature`), zero-mean
+residuals where a noise effect adds its variance (:func:`noise_mean_z`), a
+variance excess inside flat areas for a response map (:func:`flat_interior_z`),
+dipoles for a shift; :func:`gate` collects why each candidate may not be named.
+"""
+
+import math
+
+import numpy as np
+
+from .blocks import PairBlocks
+from .diagnostics import dipoles, residuals_by_probe
+from .effects import EFFECTS, contradiction, implausible
+from .fitting import is_noise_effect, params_report
+from .report import UNEXPLAINED_Z
+
+__all__ = ["gate", "signature", "noise_mean_z", "flat_interior_z", "mean_misfit",
+           "SIGNATURE_Z2"]
+
+SIGNATURE_Z2 = 25.0  # an effect's own signature must be 5 sigma (see signature)
+
+
+def signature(name, fit):
+    """Squared significance of what makes ``name`` that effect, not a rescaled IPC.
+
+    A rescaled coupling (``weight_horizontal = weight_vertical != 1``, or a
+    constant law with a new floor) would otherwise pass for anisotropy or
+    signal dependence whenever anything adds nearest-neighbour charge (e.g.
+    diffusion). The signature is the anisotropy for ``anisotropic_ipc``, the
+    two amplitudes jointly for ``signal_dependent_ipc``; for the other
+    effects the evidence itself is the signature.
+    """
+    if name == "anisotropic_ipc":
+        params, errors = params_report(fit, name)
+        sigma = errors["anisotropy"]
+        return (params["anisotropy"] / sigma) ** 2 if sigma > 0 else math.inf
+    if name == "signal_dependent_ipc":
+        idx = [fit.keys.index((name, "amp_diff")), fit.keys.index((name, "amp_level"))]
+        a = np.array([fit.values[fit.keys[i]] for i in idx])
+        try:
+            return float(a @ np.linalg.solve(fit.cov[np.ix_(idx, idx)], a))
+        except np.linalg.LinAlgError:
+            return 0.0
+    return math.inf
+
+
+def noise_mean_z(frames, model, parts, name):
+    """The mean of the residuals where a noise effect adds its variance, in units
+    of its standard error: a variance excess has zero mean there, a missing
+    signal (an after-image, a cosmic ray, a ghost) does not."""
+    num = den = 0.0
+    for (mean, var, a), m, v in zip(parts, frames.measured, frames.valid):
+        var = np.maximum(var, 1e-12)
+        r = (m - mean) / np.sqrt(var)
+        # where the effect's variance is a large share of the total
+        w = (1.0 / var) if name == "excess_read_noise" else (a * a / var)
+        w = np.where(v, w / var.mean() if name == "excess_read_noise" else w, 0.0)
+        num += float(np.sum(w * r))
+        # the residuals' own scatter: a variance excess inflates it, and a
+        # z in units of the model's variance would then flag noise as a signal
+        den += float(np.sum(w * w * r * r))
+    return num / math.sqrt(den) if den > 0 else 0.0
+
+
+def flat_interior_z(frames, model, parts, masks):
+    """Significance of the chi-square excess inside flat areas (``inf`` when
+    the frames have none): a response map shows there like anywhere bright,
+    the leftovers of a mis-modelled blur or coupling do not."""
+    values, i = [], 0
+    for (mean, _, _), var, m, v in zip(parts, PairBlocks.total_variance(model, parts),
+                                       frames.measured, frames.valid):
+        for k in range(len(mean)):
+            inside = masks[i]["flat_patches"][0] & v[k]
+            values.append(((m[k] - mean[k]) ** 2 / var[k])[inside])
+            i += 1
+    values = np.concatenate(values)
+    if values.size < 20:  # nothing flat to confirm a response map with
+        return -math.inf
+    return (float(values.mean()) - 1.0) / math.sqrt(2.0 / values.size)
+
+
+
+def mean_misfit(residuals, masks):
+    """The probe part (centres or surroundings of hot pixels, stars, flat
+    patches and their edges) whose mean residual is most significant, as
+    ``("stars centres", z)``, when it passes :data:`~.report.UNEXPLAINED_Z`;
+    else ``None``. ``z`` is the mean over its standard error measured from
+    the residuals' own scatter (an inflated variance does not hide it, an
+    underestimated one does not create it)."""
+    worst = None
+    for kind, parts in residuals_by_probe(residuals, masks).items():
+        for where, part in parts.items():
+            if part["n"] <= 5 or not np.isfinite(part["z"]) or not part["chi2"] > 0:
+                continue
+            spread = max(part["chi2"] - part["mean"] ** 2, 1e-12)
+            z = part["z"] / math.sqrt(spread)
+            if abs(z) > UNEXPLAINED_Z and (worst is None or abs(z) > abs(worst[1])):
+                worst = (f"{kind.replace('_', ' ')} "
+                         f"{'centres' if where == 'centre' else 'surroundings'}", z)
+    return worst
+
+
+def gate(frames, model, parts, trials, probes, masks):
+    """Why each fitted candidate may not be named: ``{effect: reason}``.
+
+    ``trials`` maps each candidate to its :func:`~.fitting.fit_candidate`
+    result. A fit that contradicts the effect's meaning
+    (:func:`~.effects.contradiction`), a noise effect where the residuals
+    have a non-zero mean, a response map whose flat areas show no variance
+    excess, and a shift without dipoles are refused; so are a fit whose
+    strength is outside the effect's physical range
+    (:func:`~.effects.implausible`) and a noise effect while the mean is
+    mis-modelled at the probes (:func:`mean_misfit`): variance effects earn
+    their name from variance alone.
+    """
+    contradicting = {}
+    for n, t in trials.items():
+        params = {p.name: t[3].values[(n, p.name)] for p in EFFECTS[n].params}
+        why = contradiction(n, params)
+        if why:
+            contradicting[n] = "the fit contradicts the effect: " + why
+        elif implausible(n, params, model.readnoise):
+            contradicting[n] = ("the fitted strength is outside the physical range: "
+                                + implausible(n, params, model.readnoise))
+    residuals = frames.residuals(model, parts)[0]
+    current = dipoles(residuals, probes)
+    misfit = mean_misfit(residuals, masks)
+    for axis in ("x", "y"):  # a dipole's two sides cancel in the means above
+        z = current[axis][1]
+        if misfit is None and np.isfinite(z) and abs(z) > UNEXPLAINED_Z:
+            misfit = (f"dipoles along {axis} around the sources", z)
+    for n in trials:
+        if is_noise_effect(n) and n not in contradicting:
+            z = noise_mean_z(frames, model, parts, n)
+            if abs(z) > UNEXPLAINED_Z:
+                contradicting[n] = (f"a variance excess, but the residuals there have a "
+                                    f"non-zero mean ({z:+.1f} standard errors)")
+            elif misfit:
+                where, zm = misfit
+                contradicting[n] = (f"a variance excess, but the mean is mis-modelled where "
+                                    f"it acts ({where}: {zm:+.1f} standard errors): a variance "
+                                    "effect would absorb a wrong mean")
+    if "flat_field" in trials and "flat_field" not in contradicting:
+        z = flat_interior_z(frames, model, parts, masks)
+        if z < UNEXPLAINED_Z:
+            contradicting["flat_field"] = (
+                f"a response map, but flat areas show no variance excess ({z:+.1f} sigma): "
+                "the excess sits at sources and edges")
+    if "misregistration" in trials:
+        z2 = max(current["x"][1] ** 2, current["y"][1] ** 2)
+        if not z2 > SIGNATURE_Z2:  # a blur can pass for a spline shift; a shift has dipoles
+            contradicting["misregistration"] = (
+                f"a shift, but the sources show no dipole (|z| {math.sqrt(z2):.1f})")
+    return contradicting
