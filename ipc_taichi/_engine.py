@@ -34,11 +34,25 @@ import threading
 import numpy as np
 
 from . import _kernels, runtime
-from ._device import (HostCopies, check_torch_device, kind_of, pinned_empty, pinned_for_call,
-                      shares_memory, to_torch, torch_dtype, torch_stream_order)
+from ._device import (
+    HostCopies,
+    check_torch_device,
+    kind_of,
+    pinned_empty,
+    pinned_for_call,
+    shares_memory,
+    to_torch,
+    torch_dtype,
+    torch_stream_order,
+)
 from ._inputs import Frames, as_result, as_stack
-from ._kernels import (KernelConfig, get_frame_kernels, get_step_kernel, kernel_law_kind,
-                       partials_count)
+from ._kernels import (
+    KernelConfig,
+    get_frame_kernels,
+    get_step_kernel,
+    kernel_law_kind,
+    partials_count,
+)
 from .errors import IPCInputError
 
 # rows per task of the CPU sweep: a strip re-evaluates the dy-row pairs above

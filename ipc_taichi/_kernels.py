@@ -4,7 +4,8 @@ and the kernels that bring a frame in and out of the padded working arrays.
 ``step`` computes, for every pixel,
 
     dst = base + sign * flow(src)
-    flow(S)[p] = sum over neighbours q of  w(q->p) alpha(S_q, S_p) S_q  -  w(p->q) alpha(S_p, S_q) S_p
+    flow(S)[p] = sum over neighbours q of  w(q->p) alpha(S_q, S_p) S_q
+                                         - w(p->q) alpha(S_p, S_q) S_p
 
 - forward model (couple):   base = S, src = S, sign = +1  ->  M
 - one Jacobi iteration:      base = M, src = S_{q-1}, sign = -1  ->  S_q   (paper Eq. 6)
@@ -37,11 +38,11 @@ registers and stores them, with a plain store, into its own row of a
 addresses; indices past the end are clamped to the last entry, which repeats a
 value and leaves the maximum unchanged); row 0 then holds
 ``(max|dst - src|, max|dst|)`` (rows ``0 .. tree_rows(P) - 1`` when ``P``
-exceeds the tree's capacity: the host takes their maximum). The CPU ``sweep`` writes one row per strip (a
-few dozen) and the host takes their maximum: on a CPU each extra parallel task
-costs a wake-up of the thread pool, more than the few dozen comparisons. A
-maximum is exact in any order, so the result does not depend on the layout or
-the reduction.
+exceeds the tree's capacity: the host takes their maximum). The CPU ``sweep``
+writes one row per strip (a few dozen) and the host takes their maximum: on a
+CPU each extra parallel task costs a wake-up of the thread pool, more than the
+few dozen comparisons. A maximum is exact in any order, so the result does not
+depend on the layout or the reduction.
 
 Two loop layouts, chosen at compile time (``KernelConfig.layout``):
 
@@ -177,7 +178,7 @@ def make_tree_reduction():
     return shrink, passes
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def get_reduce_kernel(precision):
     """A kernel running the tree reduction alone (the steps fuse it; tests
     and the benchmark call it on its own)."""
@@ -215,7 +216,7 @@ def alpha_sources(config):
     return tuple("column" if dx == 0 else "fresh" for _, dx in config.offsets)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def get_step_kernel(config):
     """Build (once per config) the Taichi kernel for one coupling step.
 
@@ -449,7 +450,7 @@ class FrameKernels:
     store: object
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def get_frame_kernels(precision):
     """Build (once per precision) the ``load`` and ``store`` kernels.
 

@@ -87,7 +87,8 @@ def read_image(path, hdu=None):
         if data is None:
             raise IPCInputError(f"{label}: HDU has no data")
         if data.ndim not in (2, 3) or data.size == 0:
-            raise IPCInputError(f"{label}: expected a 2-D image or 3-D cube, got shape {data.shape}")
+            raise IPCInputError(f"{label}: expected a 2-D image or 3-D cube, "
+                                f"got shape {data.shape}")
         data = np.asarray(data, dtype=np.float64)  # native order, scaled
         header = h.header.copy()
     return data, header, label

@@ -6,8 +6,7 @@ import numpy as np
 
 from ipc_taichi.bench import render_markdown, run_benchmark
 from ipc_taichi.datasets import star_field
-from ipc_taichi.reference import decouple_numpy
-from ipc_taichi.reference import couple_reference, decouple_reference
+from ipc_taichi.reference import couple_reference, decouple_numpy, decouple_reference
 
 
 def test_numpy_peer_matches_reference(rng):
@@ -53,9 +52,8 @@ def test_tiny_run_writes_results(tmp_path):
 
 
 def test_floor_measurement_is_positive_and_rendered(cpu):
-    from ipc_taichi.bench import floor_model, machine, measure_floor
-
     from ipc_taichi import runtime
+    from ipc_taichi.bench import floor_model, machine, measure_floor
 
     try:
         measured = measure_floor(n=1 << 12, repeats=1)
@@ -77,7 +75,7 @@ def test_cuda_section_runs_on_cpu_stand_in(cpu):
     """The CUDA rows' code, run with PyTorch CPU tensors as the device: every
     row is timed and right, and the section renders (without verdicts: no GPU)."""
     from ipc_taichi import runtime
-    from ipc_taichi.bench import render_cuda, measure_cuda
+    from ipc_taichi.bench import measure_cuda, render_cuda
 
     try:
         cuda = measure_cuda(size=40, repeats=1, stack=3, arch="cpu")
@@ -123,7 +121,8 @@ def test_cuda_verdicts_rendered_for_the_must_show_frame():
     cuda = {"arch": "cuda", "device": "test GPU", "notes": [], "rows": [
         row("device-resident (torch)", "f64", 2.5), row("CuPy peer, device-resident", "f64", 3.4),
         row("host in/out (NumPy)", "f64", 25.0, workspace_bytes=3, frame_bytes=1),
-        row("upload one frame (pinned)", "f64", 3.0), row("download one frame (pinned)", "f64", 3.0),
+        row("upload one frame (pinned)", "f64", 3.0),
+        row("download one frame (pinned)", "f64", 3.0),
         row("16-frame stack, host in/out, per frame", "f64", 9.0)]}
     text = render_cuda(cuda)
     assert "<= 3.0 ms: met" in text and "<= 20.0 ms: NOT met" in text
@@ -147,9 +146,8 @@ def test_jwst_ipc_kernel_inverts_the_coupling():
 def test_row_beside_the_jwst_ipc_step(cpu):
     """Both methods on the same small ramp, in this process: the exact
     decoupler is far closer to the truth than the one-pass 3x3 kernel."""
-    from ipc_taichi.bench import measure_pipeline_ipc, render_pipeline
-
     from ipc_taichi import runtime
+    from ipc_taichi.bench import measure_pipeline_ipc, render_pipeline
 
     try:
         result = measure_pipeline_ipc(size=64, nints=1, ngroups=2, repeats=1)

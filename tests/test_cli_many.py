@@ -36,7 +36,7 @@ def test_many_files_one_corrupt(tmp_path, rng):
     assert len(errors) == 1 and "broken.fits" in errors[0]
     assert "1 of 3 files failed" in r.stderr
     assert sorted(os.listdir(out)) == ["frame0_decoupled.fits", "frame1_decoupled.fits"]
-    for k, truth in enumerate(truths):
+    for k, _truth in enumerate(truths):
         got = fits.getdata(out / f"frame{k}_decoupled.fits")
         ref, iterations, _, _ = decouple_reference(fits.getdata(inputs[k]))
         np.testing.assert_allclose(got, ref, rtol=1e-9)

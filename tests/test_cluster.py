@@ -51,7 +51,7 @@ def test_files_identical_to_single_process(client, tmp_path, rng):
     assert "corrupt.fits" in results[3]["error"] and "\n" not in results[3]["error"]
     assert not os.path.exists(pairs[3][1])
     ipc_taichi.init("cpu", "f64")
-    for (src, dst), truth, res in zip(pairs, truths, results):
+    for (src, dst), _truth, res in zip(pairs, truths, results):
         single, info = ipc_taichi.decouple(fits.getdata(src), full_output=True)
         np.testing.assert_array_equal(fits.getdata(dst), single)
         assert res["iterations"] == info.iterations and res["converged"]

@@ -5,8 +5,7 @@ import numpy as np
 import pytest
 
 import ipc_taichi
-from ipc_taichi import Geometry, ParametricLaw, constant, donlon2018
-from ipc_taichi import _engine
+from ipc_taichi import Geometry, ParametricLaw, _engine, constant, donlon2018
 from ipc_taichi._kernels import get_step_kernel, kernel_law_kind
 from ipc_taichi.reference import decouple_reference
 

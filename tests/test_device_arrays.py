@@ -19,8 +19,13 @@ import torch
 
 import ipc_taichi
 from ipc_taichi import IPCInputError, _device, _engine
-from ipc_taichi._kernels import (FAN_IN, KernelConfig, get_frame_kernels, get_reduce_kernel,
-                                 get_step_kernel)
+from ipc_taichi._kernels import (
+    FAN_IN,
+    KernelConfig,
+    get_frame_kernels,
+    get_reduce_kernel,
+    get_step_kernel,
+)
 from ipc_taichi.reference import couple_reference, decouple_reference
 
 

@@ -11,7 +11,6 @@ import os
 import pytest
 
 import ipc_taichi
-
 from tests import kernel_reference
 
 RECORDED = os.path.join(kernel_reference.HERE, "kernel_reference.json")

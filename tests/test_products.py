@@ -13,6 +13,7 @@ import pytest
 from astropy.io import fits
 
 from ipc_taichi.reference import couple_reference
+
 DO_NOT_USE, SATURATED, REFERENCE_PIXEL = 1, 2, 2 ** 31
 GAIN, EFFINTTM, BORDER = 2.0, 100.0, 4
 
@@ -156,7 +157,8 @@ def test_masked_pixels_do_not_couple(cli, tmp_path, rng):
     got = fits.getdata(out, "SCI")
     assert (got[bad] == measured[bad]).all()
     assert np.abs(got - truth)[~bad].max() <= 2e-5 * truth.max()
-    r = cli("decouple", "--law", "donlon2018", src, tmp_path / "nodq.fits", "--dq-bits", "0")  # junk decoupled as data
+    # junk decoupled as data
+    r = cli("decouple", "--law", "donlon2018", src, tmp_path / "nodq.fits", "--dq-bits", "0")
     assert r.returncode == 0, r.stderr
     wrong = fits.getdata(tmp_path / "nodq.fits", "SCI")
     assert np.abs(wrong - truth)[_next_to(bad) & ~bad].max() > 1000
@@ -235,14 +237,16 @@ def test_units_are_converted(cli, tmp_path, rng):
     h["BUNIT"], h["EFFINTTM"], h["GAIN"] = "DN/s", 50.0, 1.8
     fits.writeto(rate_file, measured_e / (1.8 * 50.0), header=h)
     assert cli("decouple", "--law", "donlon2018", e_file, tmp_path / "e_out.fits").returncode == 0
-    r = cli("decouple", "--law", "donlon2018", rate_file, tmp_path / "rate_out.fits")  # GAIN and EFFINTTM keywords
+    # GAIN and EFFINTTM keywords
+    r = cli("decouple", "--law", "donlon2018", rate_file, tmp_path / "rate_out.fits")
     assert r.returncode == 0, r.stderr
     e_out = fits.getdata(tmp_path / "e_out.fits")
     rate_out = fits.getdata(tmp_path / "rate_out.fits")
     np.testing.assert_allclose(rate_out * 1.8 * 50.0, e_out, rtol=1e-10)
     assert np.abs(e_out - truth_e).max() < 0.05
     # the same numbers read as electrons would be decoupled with alpha at ~0 e-
-    r = cli("decouple", "--law", "donlon2018", rate_file, tmp_path / "wrong.fits", "--bunit", "electron")
+    r = cli("decouple", "--law", "donlon2018", rate_file, tmp_path / "wrong.fits",
+            "--bunit", "electron")
     assert r.returncode == 0
     wrong = fits.getdata(tmp_path / "wrong.fits") * 1.8 * 50.0
     assert np.abs(wrong - truth_e).max() > 100 * np.abs(e_out - truth_e).max()
@@ -297,7 +301,8 @@ def test_refpix_option_and_gain_image(cli, tmp_path, rng):
 
 def test_dq_hdu_is_refused_as_data(cli, tmp_path, rate_file):
     src, *_ = rate_file
-    r = cli("decouple", "--law", "donlon2018", src, tmp_path / "o.fits", "--gain", GAIN, "--hdu", "DQ")
+    r = cli("decouple", "--law", "donlon2018", src, tmp_path / "o.fits", "--gain", GAIN,
+            "--hdu", "DQ")
     assert r.returncode == 2 and "bit flags" in r.stderr and "[DQ]" in r.stderr
     assert not (tmp_path / "o.fits").exists()
 

@@ -72,7 +72,8 @@ def test_not_converged_exits_nonzero(cli, tmp_path, rng):
     assert "in.fits" in r.stderr and "IPCCONV = F" in r.stderr
     h = fits.getheader(out)
     assert h["IPCCONV"] is False and h["IPCITER"] == 2
-    r = cli("decouple", "--law", "donlon2018", src, tmp_path / "fixed.fits", "--max-iter", 2, "--tol", 0)
+    r = cli("decouple", "--law", "donlon2018", src, tmp_path / "fixed.fits",
+            "--max-iter", 2, "--tol", 0)
     assert r.returncode == 0, r.stderr  # a fixed count asked for is not a failure
 
 

@@ -131,21 +131,24 @@ def measure_cuda(size=CUDA_SIZE, repeats=10, stack=STACK_FRAMES, arch="cuda",
             if torch is not None and arch == "cuda":
                 torch.cuda.synchronize()
 
+        # add, run and the lambdas timed below are all called within this iteration: the
+        # loop variables they read cannot change under them (hence the B023 noqa's)
         def add(row, median, best, signal, iterations, frames=1):
             err = float(np.abs(np.asarray(signal, dtype=np.float64).reshape(-1, size, size)[0]
                                - truth).max())
-            rows.append({"row": row, "precision": precision, "size": size, "frames": frames,
+            rows.append({"row": row, "precision": precision,  # noqa: B023
+                         "size": size, "frames": frames,
                          "median_ms": median, "best_ms": best, "iterations": iterations,
                          "max_error": err})
 
         def run(data, **kw):
-            return ipc_taichi.decouple(data, arch=arch, precision=precision, full_output=True,
-                                       **kw)
+            return ipc_taichi.decouple(data, arch=arch, precision=precision,  # noqa: B023
+                                       full_output=True, **kw)
 
         # NumPy in and out: page-locked for the call (the default)
         _engine.clear_workspaces()
         free0 = _device.cuda_driver().memory()[0] if arch == "cuda" else None
-        med, best, (sig, fi) = _timed(lambda: run(measured), sync, repeats)
+        med, best, (sig, fi) = _timed(lambda: run(measured), sync, repeats)  # noqa: B023
         add("host in/out (NumPy)", med, best, sig, fi.iterations)
         if free0 is not None:
             used = free0 - _device.cuda_driver().memory()[0]
@@ -156,31 +159,33 @@ def measure_cuda(size=CUDA_SIZE, repeats=10, stack=STACK_FRAMES, arch="cuda",
         pin_in = _device.pinned_empty(measured.shape, dtype, arch=arch)
         pin_in[...] = measured
         pin_out = _device.pinned_empty(measured.shape, dtype, arch=arch)
-        med, best, (sig, fi) = _timed(lambda: run(pin_in, out=pin_out), sync, repeats)
+        med, best, (sig, fi) = _timed(lambda: run(pin_in, out=pin_out),  # noqa: B023
+                                      sync, repeats)
         add("host in/out, pinned buffers", med, best, sig, fi.iterations)
         # the same with pageable copies (no page-locking)
         with _device.pageable_copies():
-            med, best, (sig, fi) = _timed(lambda: run(measured), sync, repeats)
+            med, best, (sig, fi) = _timed(lambda: run(measured), sync, repeats)  # noqa: B023
         add("host in/out, pageable copies", med, best, sig, fi.iterations)
         # the copies alone, through the workspace the runs above used
         copies = _engine.frame_copies()
         if copies is not None:
             upload, download = copies
-            med_up, best_up, _ = _timed(lambda: upload(pin_in), sync, repeats)
+            med_up, best_up, _ = _timed(lambda: upload(pin_in), sync, repeats)  # noqa: B023
             add("upload one frame (pinned)", med_up, best_up, sig, 0)
-            med_dn, best_dn, _ = _timed(lambda: download(pin_out), sync, repeats)
+            med_dn, best_dn, _ = _timed(lambda: download(pin_out), sync, repeats)  # noqa: B023
             add("download one frame (pinned)", med_dn, best_dn, sig, 0)
         # device-resident: a tensor in, a tensor out, nothing crosses the bus
         dev_ms = None
         if torch is not None:
             t_in = torch.from_numpy(measured).to(tdev)
-            med, best, (sig, fi) = _timed(lambda: run(t_in), sync, repeats)
+            med, best, (sig, fi) = _timed(lambda: run(t_in), sync, repeats)  # noqa: B023
             add("device-resident (torch)", med, best, sig.cpu().numpy(), fi.iterations)
             dev_ms = med
             t_in = sig = None
         # a stack of frames, NumPy in and out
         cube = np.broadcast_to(measured, (stack,) + measured.shape).copy()
-        med, best, (sig, fis) = _timed(lambda: run(cube), sync, max(1, repeats // 4))
+        med, best, (sig, fis) = _timed(lambda: run(cube),  # noqa: B023
+                                       sync, max(1, repeats // 4))
         add(f"{stack}-frame stack, host in/out, per frame", med / stack, best / stack, sig,
             fis[0].iterations, frames=stack)
         cube = sig = None  # release 2 x 16 frames before the next rows
@@ -188,10 +193,11 @@ def measure_cuda(size=CUDA_SIZE, repeats=10, stack=STACK_FRAMES, arch="cuda",
         if cp is not None:
             peer = CupyPeer(precision)
             m_dev = cp.asarray(measured)
-            med, best, (s, q) = _timed(lambda: peer.decouple(m_dev), sync, repeats)
+            med, best, (s, q) = _timed(lambda: peer.decouple(m_dev), sync, repeats)  # noqa: B023
             add("CuPy peer, device-resident", med, best, cp.asnumpy(s), q)
-            med, best, (s, q) = _timed(lambda: cp.asnumpy(peer.decouple(cp.asarray(measured))[0]),
-                                       sync, repeats)
+            med, best, (s, q) = _timed(
+                lambda: cp.asnumpy(peer.decouple(cp.asarray(measured))[0]),  # noqa: B023
+                sync, repeats)
             add("CuPy peer, host in/out (pageable)", med, best, s, q)
             m_dev = None
             cp.get_default_memory_pool().free_all_blocks()
@@ -206,10 +212,10 @@ def measure_cuda(size=CUDA_SIZE, repeats=10, stack=STACK_FRAMES, arch="cuda",
         p.from_numpy(laws_params(dtype))
         table.fill(0)
         for name, fn in (("floor: alpha arithmetic alone (4 alphas/pixel)",
-                          lambda: alpha_math(a, o, p, table)),
-                         ("floor: device copy of the frame", lambda: copy(a, o)),
+                          lambda: alpha_math(a, o, p, table)),  # noqa: B023
+                         ("floor: device copy of the frame", lambda: copy(a, o)),  # noqa: B023
                          ("floor: plain step (4 alphas, no maxima)",
-                          lambda: plain_step(a, a, o, p, table))):
+                          lambda: plain_step(a, a, o, p, table))):  # noqa: B023
             med, best, _ = _timed(fn, sync, repeats)
             rows.append({"row": name, "precision": precision, "size": size, "frames": 1,
                          "median_ms": med, "best_ms": best})

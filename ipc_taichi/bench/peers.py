@@ -68,7 +68,7 @@ class CupyPeer:
         block = (32, 8, 1)
         grid = ((nx + 31) // 32, (ny + 7) // 8, 1)
         deltas, signals = [], []
-        for q in range(1, iteration.MAX_ITER + 1):
+        for q in range(1, iteration.MAX_ITER + 1):  # noqa: B007 (q is returned)
             self.kernel(grid, block, (prev, m, nxt, np.int32(ny), np.int32(nx)) + self.params)
             deltas.append(float(cp.abs(nxt - prev).max()))
             signals.append(float(cp.abs(nxt).max()))

@@ -39,7 +39,8 @@ def render_cuda(cuda):
         if dev and peer:
             lines.append(f"- {prec}: device-resident {dev['median_ms']:.2f} ms vs CuPy peer "
                          f"{peer['median_ms']:.2f} ms "
-                         f"({'not slower' if dev['median_ms'] <= peer['median_ms'] else 'SLOWER'}).")
+                         f"({'not slower' if dev['median_ms'] <= peer['median_ms'] else 'SLOWER'}"
+                         ").")
         st = next((r for r in cuda["rows"] if r["precision"] == prec
                    and r["row"].endswith("stack, host in/out, per frame")), None)
         up, dn = by.get(("upload one frame (pinned)", prec)), by.get(
@@ -51,9 +52,11 @@ def render_cuda(cuda):
                          f"{st['median_ms'] / one:.2f}x (target <= 1.2x).")
         host = by.get(("host in/out (NumPy)", prec))
         if host and "workspace_bytes" in host:
-            extra = (f", device memory used by the call {host['device_bytes'] / host['frame_bytes']:.2f}x"
+            extra = (", device memory used by the call "
+                     f"{host['device_bytes'] / host['frame_bytes']:.2f}x"
                      if "device_bytes" in host else "")
-            lines.append(f"- {prec}: working buffers {host['workspace_bytes'] / host['frame_bytes']:.2f}x "
+            lines.append(f"- {prec}: working buffers "
+                         f"{host['workspace_bytes'] / host['frame_bytes']:.2f}x "
                          f"the frame's bytes{extra} (target <= 3.5x).")
     lines += [""] + [f"- {n}" for n in cuda["notes"]]
     return "\n".join(lines) + "\n"

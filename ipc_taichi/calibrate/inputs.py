@@ -18,8 +18,7 @@ from ..fitsio import parse_hdu
 from ..products import conventions as cv
 from ..products import missions
 from ..products.fits import science_region_of
-from ..products.fitsfile import (flag_hdus, keyword, open_fits, read_array, science_indices,
-                                 shape_of)
+from ..products.fitsfile import flag_hdus, keyword, open_fits, read_array, science_indices, shape_of
 from ..products.gain import read_gain
 
 __all__ = ["ChargeFrames", "read_frames", "DEFAULT_DQ_BITS"]

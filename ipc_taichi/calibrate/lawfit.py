@@ -259,7 +259,7 @@ def fit_law(hot_rows, flat_rows, max_degree=3):
             candidates.append((f"smooth({dh},{dd})", k, model, merr, info,
                                lambda law=law: smooth_law(law, max(smax, 65536.0))))
     forms = {}
-    for name, k, model, merr, info, _ in candidates:
+    for name, k, model, _merr, info, _ in candidates:
         chi2 = float(np.sum(((model - A) / E) ** 2))
         forms[name] = {"k": k, "chi2": chi2, "bic": chi2 + k * math.log(n), **info}
     paper = donlon2018().alpha(S, N)

@@ -151,7 +151,7 @@ def calibrate(darks=(), flats=(), reference=None, output=None, *, report_path=No
             "the reference file's constant kernel (no signal dependence)"]}
     model = CouplingModel.resolve(law, geometry, "zero")
     provenance = {"software": f"ipc_taichi {__version__}", "command": "calibrate",
-                  "date": datetime.datetime.now(datetime.timezone.utc).isoformat(
+                  "date": datetime.datetime.now(datetime.UTC).isoformat(
                       timespec="seconds"),
                   "darks": [f.label for f in dark_frames], "flats": [f.label for f in flat_frames],
                   "reference": reference,

@@ -27,8 +27,14 @@ import time
 from ..errors import IPCInputError
 from ..products import ProductOptions, couple_file, decouple_file, written_by_ipc_taichi
 from ..products.missions import DEFAULT_DQ
-from .options import (add_iteration_arguments, add_model_arguments, add_quiet_argument,
-                      add_runtime_arguments, model_from_args, model_is_explicit)
+from .options import (
+    add_iteration_arguments,
+    add_model_arguments,
+    add_quiet_argument,
+    add_runtime_arguments,
+    model_from_args,
+    model_is_explicit,
+)
 
 __all__ = ["add_parsers", "run_couple", "run_decouple", "output_name"]
 

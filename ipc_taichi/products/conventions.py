@@ -8,9 +8,9 @@ science array. The conventions (also in ``docs/products.md``):
 - **DQ.** A pixel whose data-quality word has any of the chosen bits set
   (default ``DO_NOT_USE,SATURATED``; with ``--saturation LEVEL`` also every
   pixel at or above LEVEL) is not trusted: it keeps its value and neither
-  gives nor takes charge (:func:`untrusted`, the one rule for every product). Its neighbours are corrected for their other
-  neighbours only; their exchange with the masked pixel (about alpha times
-  its charge) stays in them.
+  gives nor takes charge (:func:`untrusted`, the one rule for every product).
+  Its neighbours are corrected for their other neighbours only; their
+  exchange with the masked pixel (about alpha times its charge) stays in them.
 - **Reference pixels** (the ``REFERENCE_PIXEL`` flag, or a border of ``N``
   pixels) are never changed. The science region inside them is decoupled with
   the ``zero`` edge rule: reference pixels collect no photo-charge, so they
@@ -346,8 +346,8 @@ class named:
 
 
 def correct_frames(data, operation, model, *, mask=None, region=None, scale=1.0,
-                   out=None, max_iter=iteration.MAX_ITER, tol=iteration.TOL, arch=None, precision=None, label="data",
-                   pedestal=None):
+                   out=None, max_iter=iteration.MAX_ITER, tol=iteration.TOL, arch=None,
+                   precision=None, label="data", pedestal=None):
     """Couple or decouple every 2-D frame of ``data`` by the product rules.
 
     The pure correction function under every product reader/writer.

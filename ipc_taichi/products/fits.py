@@ -42,8 +42,18 @@ from ..errors import IPCInputError
 from ..fitsio import atomic_output, check_output_path, parse_hdu
 from . import conventions as cv
 from . import missions, streams
-from .fitsfile import (flag_hdus, hdu_label, is_compressed, keyword, open_fits, read_array,
-                       science_header, science_indices, shape_of, write_skeleton)
+from .fitsfile import (
+    flag_hdus,
+    hdu_label,
+    is_compressed,
+    keyword,
+    open_fits,
+    read_array,
+    science_header,
+    science_indices,
+    shape_of,
+    write_skeleton,
+)
 from .gain import read_frame, read_gain
 from .options import ProductOptions, resolve_model
 from .provenance import Provenance

@@ -32,9 +32,9 @@ import numpy as np
 
 from ..errors import IPCInputError
 
-__all__ = ["Mission", "recognise", "roman_mission", "reference_mask", "HST_DQ_FLAGS", "JWST_DQ_FLAGS", "REFERENCE_PIXEL",
-           "check_model_chosen", "check_not_bias", "is_asdf", "TIME_KEYWORDS", "COADD_KEYWORDS",
-           "DEFAULT_DQ"]
+__all__ = ["Mission", "recognise", "roman_mission", "reference_mask", "HST_DQ_FLAGS",
+           "JWST_DQ_FLAGS", "REFERENCE_PIXEL", "check_model_chosen", "check_not_bias",
+           "is_asdf", "TIME_KEYWORDS", "COADD_KEYWORDS", "DEFAULT_DQ"]
 
 JWST_DQ_FLAGS = {
     "GOOD": 0, "DO_NOT_USE": 1, "SATURATED": 2, "JUMP_DET": 4, "DROPOUT": 8,
