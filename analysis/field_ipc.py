@@ -284,7 +284,8 @@ def measure_flats(levels, law="donlon2018", size=512, n_frames=2, read_noise=10.
         (``alpha(S, S)``, for the project's laws).
     """
     from ipc_taichi.datasets import flat
-    from ipc_taichi.detector import collect, expose, read_noise as draw_read_noise
+    from ipc_taichi.detector import collect, expose
+    from ipc_taichi.detector import read_noise as draw_read_noise
     from ipc_taichi.laws import get_law
 
     rng = np.random.default_rng(seed)

@@ -10,9 +10,15 @@ from functools import partial
 import numpy as np
 import pytest
 
-from analysis.field_ipc import (alpha_from_flat, couple_source_law, flat_covariance_prediction,
-                                hot_pixel_alpha, linearised_alpha, measure_flats,
-                                measure_hot_pixels)
+from analysis.field_ipc import (
+    alpha_from_flat,
+    couple_source_law,
+    flat_covariance_prediction,
+    hot_pixel_alpha,
+    linearised_alpha,
+    measure_flats,
+    measure_hot_pixels,
+)
 from ipc_taichi.laws import get_law
 
 

@@ -6,7 +6,6 @@ file; what was hidden is known to the test alone."""
 import pytest
 
 from ipc_taichi.discover import discover
-
 from tests.independent import peerlab  # noqa: E402  (GalSim: listed for the test extra)
 
 

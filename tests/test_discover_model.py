@@ -8,9 +8,15 @@ import pytest
 
 import ipc_taichi
 from ipc_taichi.discover import EFFECT_NAMES, DetectorModel
-from ipc_taichi.discover.effects import (brighter_fatter, contradiction, diffuse,
-                                         diffusion_weights, nonlinearity, reciprocity,
-                                         shift_scene)
+from ipc_taichi.discover.effects import (
+    brighter_fatter,
+    contradiction,
+    diffuse,
+    diffusion_weights,
+    nonlinearity,
+    reciprocity,
+    shift_scene,
+)
 from ipc_taichi.discover.model import _colouring
 
 

@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 
 from ipc_taichi.discover import discover
-
 from tests.independent import peerlab
 
 DIFFUSION = {"strength": 1e-6, "diffusion_factor": 0.5, "nrecalc": 10 ** 9}

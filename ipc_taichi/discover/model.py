@@ -58,10 +58,18 @@ import numpy as np
 from ..detector import collect, read_noise, read_out
 from ..errors import GeometryError
 from ..geometry import Geometry
-from ..model import CouplingModel
 from ..laws import ParametricLaw, get_law
-from .effects import (EFFECTS, LAW_SCALE_DIFF, LAW_SCALE_LEVEL, brighter_fatter, diffuse,
-                      nonlinearity, reciprocity, shift_scene)
+from ..model import CouplingModel
+from .effects import (
+    EFFECTS,
+    LAW_SCALE_DIFF,
+    LAW_SCALE_LEVEL,
+    brighter_fatter,
+    diffuse,
+    nonlinearity,
+    reciprocity,
+    shift_scene,
+)
 from .sampling import block_sum, boundary_arrivals, isolated_points, shift_fine
 
 __all__ = ["DetectorModel", "CHAIN_ORDER", "SUBPIXEL_EFFECTS", "is_constant_law"]

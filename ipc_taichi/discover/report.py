@@ -114,9 +114,7 @@ def write_figures(discovery, directory):
     ax.plot(x, discovery.gaps, "o-", color="C3", label="gap (data)")
     ax.set_xticks(x, labels, rotation=20, ha="right")
     if max(discovery.gaps) > 3 * max(floor, 1e-9):  # e.g. a strong blur: gaps of 50
-        from matplotlib.ticker import ScalarFormatter
-
-        from matplotlib.ticker import LogLocator, NullFormatter
+        from matplotlib.ticker import LogLocator, NullFormatter, ScalarFormatter
 
         ax.set_yscale("log")
         # labels at 1, 2, 5 per decade; unlabelled minor ticks (labelled ones pile up)

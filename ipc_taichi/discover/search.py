@@ -56,11 +56,32 @@ import numpy as np
 from ..errors import IPCInputError
 from ..model import CouplingModel
 from .blocks import PairBlocks
-from .diagnostics import (SIGNAL_BINS, after_images, dipoles, find_probes, gap, pair_correlation,
-                          probe_masks, residual_vs_signal, residuals_by_probe, stacked_windows)
+from .diagnostics import (
+    SIGNAL_BINS,
+    after_images,
+    dipoles,
+    find_probes,
+    gap,
+    pair_correlation,
+    probe_masks,
+    residual_vs_signal,
+    residuals_by_probe,
+    stacked_windows,
+)
 from .effects import SEPARATION
-from .fitting import (EVIDENCE_THRESHOLD, candidates, chi2_of, fit_candidate, full_evidence,
-                      is_noise_effect, partners, params_report, prune, refit_all, sds_of)
+from .fitting import (
+    EVIDENCE_THRESHOLD,
+    candidates,
+    chi2_of,
+    fit_candidate,
+    full_evidence,
+    is_noise_effect,
+    params_report,
+    partners,
+    prune,
+    refit_all,
+    sds_of,
+)
 from .gates import SIGNATURE_Z2, gate, signature
 from .labdata import LabData, read_lab
 from .model import CHAIN_ORDER, DetectorModel
