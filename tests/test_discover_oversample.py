@@ -213,7 +213,7 @@ def test_simulate_lab_cli_oversample_and_model_file(tmp_path, cli):
     from ipc_taichi.model import CouplingModel
 
     model_file = str(tmp_path / "coupling.json")
-    CouplingModel.resolve("constant:0.011", "diagonal=0.1").save(model_file)
+    CouplingModel.resolve("constant:0.011", "horizontal=1,vertical=1,diagonal=0.1").save(model_file)
     out = str(tmp_path / "lab.fits")
     done = cli("simulate-lab", out, "--size", "64", "--pairs", "1", "--oversample", "3",
                "--model", model_file)
@@ -323,7 +323,7 @@ def test_discover_starts_from_a_coupling_model_file(tmp_path, cli):
     from ipc_taichi.model import CouplingModel
 
     model_file = str(tmp_path / "coupling.json")
-    CouplingModel.resolve("constant:0.012", "diagonal=0.15").save(model_file)
+    CouplingModel.resolve("constant:0.012", "horizontal=1,vertical=1,diagonal=0.15").save(model_file)
     lab = str(tmp_path / "lab.fits")
     assert cli("simulate-lab", lab, "--size", "64", "--pairs", "1", "--seed", "3", "--model",
                model_file).returncode == 0
