@@ -21,7 +21,7 @@ which it used; figures/RESULTS.md compares its numbers with each):
     is that Gaussian's. It is not a half-maximum measurement: for an Airy-like
     core with its shoulders the fitted Gaussian is narrower than the profile's
     half-maximum width (by ~4 % for the JWST-like F405N PSF: 2.075 against
-    2.16 px). Its name before this module said so was ``fwhm_radial``.
+    2.16 px). Earlier versions called it ``fwhm_radial``, which it is not.
 
 All take arrays sampled every ``1/oversample`` detector pixel and return
 widths in detector pixels.

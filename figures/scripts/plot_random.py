@@ -31,6 +31,9 @@ def histogram(d, m, plt, stem):
     ax.set_xlabel(f"pixel error {DIFF[m]} [counts]")
     ax.set_ylabel("pixels per bin")
     note = f"ours: min {lo:.4g}, max {hi:.4g}, mean |error| {d[f'mae_{m}'][0]:.3g}"
+    if m == "lr":
+        note += (f"\nrun to convergence ({int(d['lr_converged_iter'][0])} iterations): "
+                 f"mean |error| {float(d['mae_lr_converged'][0]):.3g}")
     if m in PAPER_MAX:
         note += f"\npaper: max |error| {PAPER_MAX[m]}"
     ax.text(0.98, 0.95, note, transform=ax.transAxes, ha="right", va="top", fontsize=8.5,
