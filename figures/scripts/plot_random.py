@@ -28,6 +28,7 @@ def histogram(d, m, plt, stem):
     lo, hi = d[f"extremes_{m}"]
     fig, ax = plt.subplots(figsize=(6.4, 4.2))
     ax.stairs(counts, bins, fill=True, alpha=0.75)
+    ax.set_ylim(0, 1.4 * counts.max())  # room for the note above the peak
     ax.set_xlabel(f"pixel error {DIFF[m]} [counts]")
     ax.set_ylabel("pixels per bin")
     note = f"ours: min {lo:.4g}, max {hi:.4g}, mean |error| {d[f'mae_{m}'][0]:.3g}"
