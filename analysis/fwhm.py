@@ -1,29 +1,42 @@
 """Full width at half maximum of a sampled PSF.
 
-Two estimators, so that each checks the other:
+Three estimators, each named for what it measures (the paper does not say
+which it used; figures/RESULTS.md compares its numbers with each):
 
-:func:`fwhm_spline` (the paper's method)
+:func:`fwhm_spline` (cross sections)
     A 1-D cubic interpolating spline through the samples of the row (for x)
     and of the column (for y) that hold the PSF's largest sample; the maximum
     of the spline is the peak, and the FWHM is the distance between the two
     points where the spline falls to half of it (found by root bracketing).
-:func:`fwhm_radial` (independent)
-    :func:`poppy.measure_fwhm`: an azimuthally averaged radial profile about
-    the PSF centre, interpolated to half its central value. It averages over
-    all directions, so for a non-circular PSF it differs from the x and y
-    cross sections.
+:func:`fwhm_azimuthal` (azimuthal-average profile)
+    The mean of the PSF over circles about its centre (a bicubic spline of
+    the samples, evaluated at equally spaced angles) as a function of radius;
+    the FWHM is twice the radius where that mean falls to half the central
+    value. For a non-circular PSF it averages all directions, so it differs
+    from the x and y cross sections.
+:func:`fwhm_gaussian_fit` (Gaussian fitted to the core)
+    :func:`poppy.measure_fwhm` (poppy 1.1.2; WebbPSF/stpsf ship the same
+    function): a 1-D Gaussian of radius, its mean fixed at the array centre,
+    fitted by least squares to *every sample* above 10 % of the peak; the FWHM
+    is that Gaussian's. It is not a half-maximum measurement: for an Airy-like
+    core with its shoulders the fitted Gaussian is narrower than the profile's
+    half-maximum width (by ~4 % for the JWST-like F405N PSF: 2.075 against
+    2.16 px). Earlier versions called it ``fwhm_radial``, which it is not.
 
-Both take arrays sampled every ``1/oversample`` detector pixel and return
+All take arrays sampled every ``1/oversample`` detector pixel and return
 widths in detector pixels.
 """
 
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.interpolate import CubicSpline
-from scipy.optimize import brentq, minimize_scalar
+from scipy.interpolate import CubicSpline, RectBivariateSpline
+from scipy.optimize import brentq, minimize, minimize_scalar
 
-__all__ = ["FWHM", "fwhm_spline", "fwhm_profile", "fwhm_radial"]
+__all__ = ["FWHM", "fwhm_spline", "fwhm_profile", "fwhm_azimuthal", "fwhm_gaussian_fit"]
+
+AZIMUTHS = 360
+"""Angles at which :func:`fwhm_azimuthal` samples each circle (every 1 degree)."""
 
 
 @dataclass(frozen=True)
@@ -110,8 +123,60 @@ def fwhm_spline(psf, oversample=4):
     return FWHM(x=wx, y=wy, peak=peak)
 
 
-def fwhm_radial(psf, oversample=4):
-    """FWHM [detector pixels] from the azimuthal radial profile (:func:`poppy.measure_fwhm`)."""
+def fwhm_azimuthal(psf, oversample=4, azimuths=AZIMUTHS):
+    """FWHM [detector pixels] at the half maximum of the azimuthal-average profile.
+
+    Parameters
+    ----------
+    psf : 2-D array
+        Sampled every ``1/oversample`` detector pixel, ``psf[y, x]``, one
+        maximum well inside the array.
+    oversample : int
+        Samples per detector pixel.
+    azimuths : int
+        Equally spaced angles on each circle.
+
+    Returns
+    -------
+    float
+        Twice the radius at which the mean of the PSF over the circle about
+        its centre falls to half the central value. The centre and the central
+        value are the maximum of a bicubic interpolating spline of the samples
+        (found within one sample of the largest sample).
+    """
+    a = np.asarray(psf, dtype=np.float64)
+    if a.ndim != 2 or min(a.shape) < 5 or not np.all(np.isfinite(a)):
+        raise ValueError(f"psf must be a finite 2-D array of at least 5x5 samples, got shape {a.shape}")
+    h = 1.0 / oversample
+    ty, tx = np.arange(a.shape[0]) * h, np.arange(a.shape[1]) * h
+    spline = RectBivariateSpline(ty, tx, a, kx=3, ky=3, s=0)
+    iy, ix = np.unravel_index(int(np.argmax(a)), a.shape)
+    best = minimize(lambda p: -spline.ev(p[0], p[1]), x0=[ty[iy], tx[ix]], method="L-BFGS-B",
+                    bounds=[(ty[iy] - h, ty[iy] + h), (tx[ix] - h, tx[ix] + h)],
+                    options={"ftol": 1e-15, "gtol": 1e-12})
+    (cy, cx), half = best.x, -0.5 * float(best.fun)
+    theta = np.linspace(0.0, 2 * np.pi, int(azimuths), endpoint=False)
+    cos, sin = np.cos(theta), np.sin(theta)
+    r_max = min(cy - ty[0], ty[-1] - cy, cx - tx[0], tx[-1] - cx)
+
+    def excess(r):
+        return float(spline.ev(cy + r * sin, cx + r * cos).mean()) - half
+
+    radii = np.arange(h / 4, r_max, h / 4)
+    below = [r for r in radii if excess(r) < 0]
+    if not below:
+        raise ValueError("the azimuthal profile does not fall to half its maximum inside the array")
+    r_hi = below[0]
+    return 2.0 * brentq(excess, r_hi - h / 4, r_hi, xtol=1e-12)
+
+
+def fwhm_gaussian_fit(psf, oversample=4):
+    """FWHM [detector pixels] of a Gaussian fitted to the core (:func:`poppy.measure_fwhm`).
+
+    poppy fits ``A exp(-r^2 / 2 s^2)``, ``r`` the distance from the array
+    centre, to every sample above 10 % of the peak and returns
+    ``2 sqrt(2 ln 2) s``; not a half-maximum measurement (module docstring).
+    """
     import poppy
     from astropy.io import fits
 

@@ -128,3 +128,26 @@ def test_wiener_balance_rule_and_zero_padded_edges(cpu):
     padded = np.abs(wiener_filter(measured, kernel, 0.0) - truth)[edge].mean()
     periodic = np.abs(wiener_filter(measured, kernel, 0.0, pad=0) - truth)[edge].mean()
     assert padded < 0.2 * periodic
+
+
+def test_lucy_richardson_path_equals_scikit_image_and_converges():
+    from skimage.restoration import richardson_lucy
+
+    from analysis.deconvolution import lucy_richardson_path
+
+    truth = np.random.default_rng(8).uniform(1000.0, 60000.0, (48, 40))
+    measured = ipc_taichi.couple(truth, law="constant:0.01")
+    kernel = ipc_kernel(0.009)
+    scale = measured.max()
+    path = lucy_richardson_path(measured, kernel, (3, 12), tol=1e-9, max_iter=2000)
+    for it, restored in zip(path.iterations[:2], path.restored[:2]):
+        reference = richardson_lucy(measured / scale, kernel, num_iter=it, clip=False) * scale
+        assert np.abs(restored - reference).max() < 1e-8 * scale
+    assert path.iterations[:2] == [3, 12]
+    assert path.converged and 12 < path.iterations[-1] < 2000
+    # at convergence one more iteration changes nothing above the tolerance
+    more = lucy_richardson_path(measured, kernel, (path.iterations[-1] + 1,))
+    assert np.abs(more.restored[0] - path.restored[-1]).max() < 1e-9 * scale
+    # not converged within max_iter: the last iterate is still returned, flagged
+    short = lucy_richardson_path(measured, kernel, (), tol=1e-15, max_iter=5)
+    assert short.iterations == [5] and not short.converged

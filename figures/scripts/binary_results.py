@@ -17,7 +17,7 @@ FIT_LABEL = {"truth": "truth frame, truth ePSF",
              "coupled": "coupled frame, coupled ePSF",
              "decoupled": "decoupled frame, decoupled ePSF"}
 PAPER = {"coupled_optical": "~1.5 % / ~50 mpix (bright, figs 4.0.1-3)",
-         "decoupled": "<= 0.01 % / <= 1 mpix", "truth": "0 / 0", "coupled": "-"}
+         "decoupled": "0.01-0.001 % / micro-pixels", "truth": "0 / 0", "coupled": "-"}
 
 
 def fmt(pair, digits=3):
@@ -62,8 +62,8 @@ def headline(data):
         f"{sep(d, 'coupled_optical')} (8:1: {e8:+.3g} mpix) |",
         f"| coupled, flux error, coupled ePSF | - | {flux(b, 'coupled')} | {flux(d, 'coupled')} |",
         f"| coupled, separation error, coupled ePSF | - | {sep(b, 'coupled')} | {sep(d, 'coupled')} |",
-        f"| decoupled, flux error | <= 0.01 % | {flux(b, 'decoupled')} | {flux(d, 'decoupled')} |",
-        f"| decoupled, separation error | <= 1 mpix | {sep(b, 'decoupled')} | {sep(d, 'decoupled')} |",
+        f"| decoupled, flux error | hundredths or thousandths of a % | {flux(b, 'decoupled')} | {flux(d, 'decoupled')} |",
+        f"| decoupled, separation error | micro-pixels (1e-3 mpix) | {sep(b, 'decoupled')} | {sep(d, 'decoupled')} |",
         "",
         f"Over the whole noise-free grid (all brightnesses, ratios, separations) the decoupled "
         f"frames give |flux error| <= {dec_flux:.2g} % and |separation error| <= {dec_sep:.2g} "
@@ -124,12 +124,16 @@ def detection_table(data, names):
                and r["separation"] == sep]
         return sum(r["detected"][frame][ms] for r in sel) / len(sel)
 
-    out = ["**Detection** (photutils IRAFStarFinder, FWHM 2.1 px, threshold a fifth of the "
+    out = ["**Detection** (photutils IRAFStarFinder, FWHM 2.1 px, `roundness_range=(0, 1)`, "
+           "threshold a fifth of the "
            "faint star's peak, noise-free frames; fraction of the two stars found within 0.5 px "
            "over 16 sub-pixel positions; bright primary, coupled frame (truth frame in "
            "brackets where it differs)). `min_separation` is set explicitly: photutils 3.0 "
            "defaults it to 2.5 x FWHM = 5.25 px, which merges every closer pair whatever the "
-           "image holds.", "",
+           "image holds. The roundness range is widened from photutils' default (0 to 0.2) "
+           "because a blended pair's peaks are elongated: in a separate check (coupled bright 1:1 "
+           "pair 3 px apart, min_separation 1 px, a simpler matching rule than the table's) the "
+           "default range found both stars at 3 of 16 positions, (0, 1) at 16 of 16.", "",
            "| min_separation | ratio | " + " | ".join(f"{s:g} px" for s in seps) + " |",
            "|---|---|" + "---|" * len(seps)]
     for ms in min_seps:
@@ -191,7 +195,13 @@ def bright_psf(data):
             f"faint star / separation), against {cell(own)} with the pair's own coupled ePSF and "
             f"{cell(free)} with the IPC-free PSF: the bright star's PSF carries its weaker "
             "coupling (alpha falls with signal), so on a fainter blend it leaves part of the "
-            "IPC error in place.", ""]
+            "IPC error in place. The abstract quantifies this scenario: flux \"off by upwards of "
+            "1.5 %\" and a separation error of 50 mpix for a 4:1 pair 3 px apart. The bias here "
+            "is of that kind but smaller (largest primary flux error "
+            f"{max(abs(grid_row(data, n, 0.25, 3.0, False)['coupled_brightpsf']['flux_error_pct'][0][0]) for n in ('bright', 'mid', 'dim')):.2f} %, "
+            "separation error "
+            f"{max(abs(grid_row(data, n, 0.25, 3.0, False)['coupled_brightpsf']['separation_error_mpix'][0]) for n in ('bright', 'mid', 'dim')):.1f} mpix, noise-free); "
+            "the abstract's size is not reproduced.", ""]
     return out
 
 

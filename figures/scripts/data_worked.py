@@ -64,9 +64,11 @@ iterations, < 0.005 after 7) with the decimals of the authors' demonstration cod
 (docs/analysis.md). The paper's stopping rule (max change below 1e-5 of the maximum) stops
 after {info.iterations} iterations (the authors' code: 4).
 
-Slips in the paper's text, for the record: it says one iteration leaves "0.1 %" of error;
-the worked example's numbers give {100 * max_err[1] / truth.max():.3f} % (16.7 of 10000). It says three
-leave "0.0004 %"; they give {100 * max_err[3] / truth.max():.5f} % (0.056 of 10000).
+Slips in the paper's text, for the record: its sentences are about the error *at the
+peak* pixel (10000). It says one iteration leaves "0.1 %" there; the worked example gives
+{100 * (truth.max() - peak[1]) / truth.max():.3f} % ({truth.max() - peak[1]:.2f} of 10000). It says three leave "0.0004 %"; the peak's error
+is {100 * (truth.max() - peak[3]) / truth.max():.5f} % ({truth.max() - peak[3]:.3f} of 10000; the frame's largest error after three
+iterations, {max_err[3]:.3f}, would be {100 * max_err[3] / truth.max():.5f} %).
 """)
 
 

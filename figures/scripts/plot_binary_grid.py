@@ -30,12 +30,31 @@ def xpos(sep):
     return X_WIDE if sep == WIDE else sep
 
 
+BREAK = 5.5  # where the separation axis is broken (between 5 and 20 px)
+
+
 def style_xaxis(ax, separations):
     ticks = [s for s in separations if s != WIDE] + ([WIDE] if WIDE in separations else [])
     ax.set_xticks([xpos(s) for s in ticks])
     ax.set_xticklabels([f"{s:g}" for s in ticks])
     if WIDE in separations:
-        ax.axvline(5.5, color="0.8", lw=0.8, ls=":")
+        ax.axvline(BREAK, color="0.8", lw=0.8, ls=":")
+        # the break marks on the x axis: 5 and 20 px are not a scale apart
+        ax.plot([BREAK - 0.08, BREAK + 0.02], [-0.015, 0.015], transform=ax.get_xaxis_transform(),
+                color="k", lw=1, clip_on=False)
+        ax.plot([BREAK - 0.02, BREAK + 0.08], [-0.015, 0.015], transform=ax.get_xaxis_transform(),
+                color="k", lw=1, clip_on=False)
+
+
+def draw(ax, seps, mean, err, **kw):
+    """Errorbars joined by lines up to 5 px; the isolated 20 px reference unjoined, beyond the break."""
+    seps, mean, err = np.asarray(seps), np.asarray(mean), np.asarray(err)
+    near = seps != WIDE
+    dx = kw.pop("_dx", 0.0)
+    line = ax.errorbar(seps[near] + dx, mean[near], yerr=err[near], marker="o", ms=3, capsize=2, **kw)
+    if (~near).any():
+        ax.errorbar([xpos(WIDE) + dx], mean[~near], yerr=err[~near], marker="o", ms=3, capsize=2,
+                    ls="none", color=line[0].get_color())
 
 
 def plot_brightness(data, name, path):
@@ -50,8 +69,8 @@ def plot_brightness(data, name, path):
                 sel = sorted((r for r in rows if r["ratio"] == ratio), key=lambda r: r["separation"])
                 mean = np.array([pick(r[fit])[0] for r in sel])
                 std = np.array([pick(r[fit])[1] for r in sel])
-                ax.errorbar([xpos(r["separation"]) for r in sel], mean, yerr=std, marker="o", ms=3,
-                            capsize=2, label=f"flux ratio {RATIO_LABEL.get(ratio, ratio)}")
+                draw(ax, [r["separation"] for r in sel], mean, std,
+                     label=f"flux ratio {RATIO_LABEL.get(ratio, ratio)}")
             ax.axhline(0, color="k", lw=0.6)
             ax.grid(alpha=0.3)
             style_xaxis(ax, seps)
@@ -60,7 +79,7 @@ def plot_brightness(data, name, path):
             if j == 0:
                 ax.set_ylabel(label)
             if i == 2:
-                ax.set_xlabel("separation [px]  (20 = isolated reference)")
+                ax.set_xlabel("separation [px]  (axis broken: 20 = isolated reference)")
     axes[0, 0].legend(fontsize=8)
     flux = data["flux"][name]
     fig.suptitle(f"Binary star, '{name}' primary ({flux:.2g} e-), noise-free, photutils PSF fit: "
@@ -88,8 +107,7 @@ def plot_noise(data, path, ratio=0.25):
                 n = rows[0][fit]["n"]
                 mean = np.array([pick(r[fit])[0] for r in rows])
                 sem = np.array([pick(r[fit])[1] for r in rows]) / np.sqrt(n)
-                ax.errorbar([xpos(s) + 0.06 * (k - 1.5) for s in seps], mean, yerr=sem, marker="o",
-                            ms=3, capsize=2, label=flabel)
+                draw(ax, seps, mean, sem, label=flabel, _dx=0.06 * (k - 1.5))
             ax.axhline(0, color="k", lw=0.6)
             ax.grid(alpha=0.3)
             style_xaxis(ax, seps)
@@ -98,7 +116,7 @@ def plot_noise(data, path, ratio=0.25):
             if j == 0:
                 ax.set_ylabel(label)
             if i == 2:
-                ax.set_xlabel("separation [px]")
+                ax.set_xlabel("separation [px]  (axis broken before 20)")
     axes[0, 0].legend(fontsize=8)
     rn = data["study"]["read_noise"]
     fig.suptitle(f"Binary star {RATIO_LABEL[ratio]}, noise present (Poisson + {rn:g} e- read "

@@ -14,7 +14,6 @@ import numpy as np
 
 from _common import load_npz, pyplot, savefig
 
-from analysis.fwhm import fwhm_spline
 from analysis.psf import continuous_psf
 
 MODEL = "point"
@@ -48,6 +47,12 @@ def labels(d):
     return {str(k): float(f) for k, f in zip(d["levels"], d["fluxes"])}
 
 
+def widths(d, name):
+    """Gaussian-fit and half-maximum (spline) FWHM of a measured PSF, from the data file."""
+    k = list(d["fwhm_keys"]).index(f"{MODEL}_{name}")
+    return float(d["fwhm_gaussian"][k]), 0.5 * float(d["fwhm_x"][k] + d["fwhm_y"][k])
+
+
 def psf_3d(d, o, plt):
     epsf = unit(d[f"{MODEL}_bright_decoupled"], o)
     spline = continuous_psf(epsf, o)
@@ -56,7 +61,10 @@ def psf_3d(d, o, plt):
     X, Y = np.meshgrid(t, t)
     fig = plt.figure(figsize=(6.4, 5.0))
     ax = fig.add_subplot(projection="3d")
-    ax.plot_surface(X, Y, z, cmap="magma", rstride=1, cstride=1, linewidth=0)
+    # no facet edges and no antialiasing of them: drawn edges of ~15000 thin facets alias
+    # into a moire pattern on the flat base
+    ax.plot_surface(X, Y, z, cmap="magma", rcount=z.shape[0], ccount=z.shape[1], linewidth=0,
+                    edgecolor="none", antialiased=False, shade=False)
     ax.set_xlabel("x offset [px]")
     ax.set_ylabel("y offset [px]")
     ax.set_zlabel("fraction of flux per pixel")
@@ -71,14 +79,14 @@ def psf_cross_section(d, o, plt):
     truth = unit(d[f"{MODEL}_truth"], o)
     x = offsets(truth, o)
     fig, ax = plt.subplots(figsize=(6.8, 4.4))
-    w = fwhm_spline(truth, o).mean
     inset = ax.inset_axes([0.70, 0.42, 0.28, 0.53])
-    curves = [("k", 2, f"truth = decoupled (FWHM {w:.3f} px; paper 2.080)", truth)]
+    g, h = widths(d, "truth")
+    curves = [("k", 2, f"truth = decoupled: {g:.3f} / {h:.3f} px (paper 2.080)", truth)]
     for lv in ("bright", "mid", "dim"):
         e = unit(d[f"{MODEL}_{lv}_coupled"], o)
+        g, h = widths(d, f"{lv}_coupled")
         curves.append((COLORS[lv], 1.2,
-                       f"{lv} coupled, {fl[lv]:.3g} e- (FWHM {fwhm_spline(e, o).mean:.3f} px; "
-                       f"paper {PAPER[lv]:.3f})", e))
+                       f"{lv} coupled, {fl[lv]:.3g} e-: {g:.3f} / {h:.3f} px (paper {PAPER[lv]:.3f})", e))
     for color, lw, label, e in curves:
         t, v = smooth(x, row(e))
         ax.plot(t, v, "-", color=color, lw=lw, label=label)
@@ -86,14 +94,16 @@ def psf_cross_section(d, o, plt):
     ax.set_xlim(-4, 4)
     ax.set_xlabel("x offset from the source [detector px]")
     ax.set_ylabel("fraction of flux per pixel")
-    ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=2)
+    ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=2,
+              title="FWHM: Gaussian fit (the paper's 2.080 cell) / half maximum (spline); "
+                    "the same estimator on every row", title_fontsize=8)
     inset.set_xlim(-0.5, 0.5)
     inset.set_ylim(0.95 * row(truth).max(), 1.003 * row(truth).max())
     inset.set_title("peak, zoomed", fontsize=8)
     inset.tick_params(labelsize=7)
     ax.set_title("PSF cross section through the peak, with signal-dependent IPC\n"
                  "(JWST-like F405N, point-sampled as the paper's Eq. 10, 0.063\"/px, 10 ks; "
-                 "FWHM: spline through the peak; paper Fig. 3.3.2)", fontsize=9.5)
+                 "paper Fig. 3.3.2)", fontsize=9.5)
     return fig
 
 
@@ -125,21 +135,26 @@ def psf_static8(d, o, plt):
     diag = unit(d[f"{MODEL}_static8_diag"], o)
     x = offsets(truth, o)
     fig, ax = plt.subplots(figsize=(6.8, 4.2))
-    ax.plot(*smooth(x, row(truth)), "k-", lw=2,
-            label=f"no IPC (FWHM {fwhm_spline(truth, o).mean:.3f} px; paper 2.080)")
+    gt, ht = widths(d, "truth")
+    g4, h4 = widths(d, "static8")
+    gd, hd = widths(d, "static8_diag")
+    ax.plot(*smooth(x, row(truth)), "k-", lw=2, label=f"no IPC: {gt:.3f} / {ht:.3f} px (paper 2.080)")
     ax.plot(*smooth(x, row(static)), "C1--", lw=1.5,
-            label=f"static $\\alpha$ = 8 %, 4 neighbours (FWHM {fwhm_spline(static, o).mean:.3f} px)")
+            label=f"static $\\alpha$ = 8 %, 4 neighbours: {g4:.3f} / {h4:.3f} px "
+                  f"(+{100 * (g4 / gt - 1):.1f} %)")
     ax.plot(*smooth(x, row(diag)), "C1-", lw=2,
-            label=f"8 % + 0.75 % to each diagonal (FWHM {fwhm_spline(diag, o).mean:.3f} px; "
-                  "paper 2.249)")
+            label=f"8 % + 0.75 % to each diagonal: {gd:.3f} / {hd:.3f} px "
+                  f"(+{100 * (gd / gt - 1):.1f} %; paper 2.249, +8.1 %)")
     ax.set_xlim(-4, 4)
     ax.set_xlabel("x offset from the source [detector px]")
     ax.set_ylabel("fraction of flux per pixel")
     ax.set_title("PSF cross section with a static H4RG-10-like IPC, $\\alpha$ = 8 %\n"
                  "(35 % of the charge leaves the centre with the diagonals, as the paper says;\n"
-                 "JWST-like F405N, point-sampled, 0.063\"/px; FWHM by spline; paper Fig. 5.0.1)",
+                 "JWST-like F405N, point-sampled, 0.063\"/px; paper Fig. 5.0.1)",
                  fontsize=9.5)
-    ax.legend(fontsize=8)
+    ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=1,
+              title="FWHM: Gaussian fit (the paper's 2.080 cell) / half maximum (spline)",
+              title_fontsize=8)
     return fig
 
 
