@@ -119,8 +119,7 @@ def fit_stars(frame, psf_model, x_init, y_init, flux_init, fit_shape=(9, 9), min
         In the order of the initial guesses.
     """
     from astropy.table import QTable
-    from photutils.psf import PSFPhotometry, SourceGrouper
-    from photutils.psf import _components
+    from photutils.psf import PSFPhotometry, SourceGrouper, _components
 
     init = QTable({"x_init": np.atleast_1d(np.asarray(x_init, float)),
                    "y_init": np.atleast_1d(np.asarray(y_init, float)),

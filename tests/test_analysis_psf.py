@@ -7,8 +7,14 @@ import pytest
 from scipy.special import erf
 
 from analysis.fwhm import fwhm_azimuthal, fwhm_gaussian_fit, fwhm_profile, fwhm_spline
-from analysis.psf import (airy_psf, continuous_psf, effective_psf, optical_psf,
-                          point_source_image, read_psf_file)
+from analysis.psf import (
+    airy_psf,
+    continuous_psf,
+    effective_psf,
+    optical_psf,
+    point_source_image,
+    read_psf_file,
+)
 
 O = 4
 

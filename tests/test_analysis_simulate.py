@@ -6,8 +6,15 @@ import pytest
 import ipc_taichi
 from analysis.deconvolution import effective_alpha, ipc_kernel, lucy_richardson, wiener_filter
 from analysis.psf import optical_psf, point_source_image
-from analysis.simulate import (MAGNITUDES, SATURATION, ZERO_POINT, Source, flux_from_mag,
-                               mag_from_flux, simulate)
+from analysis.simulate import (
+    MAGNITUDES,
+    SATURATION,
+    ZERO_POINT,
+    Source,
+    flux_from_mag,
+    mag_from_flux,
+    simulate,
+)
 
 
 @pytest.fixture(scope="module")

@@ -5,8 +5,16 @@ import pytest
 
 import ipc_taichi
 from analysis import binary
-from analysis.binary import (FITS, METHODS, OFFSETS, BinaryGrid, MethodStudy, pair_frames,
-                             run_study, summarise)
+from analysis.binary import (
+    FITS,
+    METHODS,
+    OFFSETS,
+    BinaryGrid,
+    MethodStudy,
+    pair_frames,
+    run_study,
+    summarise,
+)
 from analysis.psf import point_source_image
 
 

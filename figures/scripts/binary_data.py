@@ -20,8 +20,7 @@ import time
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(os.path.dirname(HERE)))
 
-from analysis.binary import (BinaryGrid, MethodStudy, fitter_choices, run_study,  # noqa: E402
-                             summarise)
+from analysis.binary import BinaryGrid, MethodStudy, fitter_choices, run_study, summarise  # noqa: E402
 from analysis.psf import optical_psf  # noqa: E402
 from ipc_taichi.fitsio import atomic_output  # noqa: E402
 

@@ -13,7 +13,6 @@ Writes data/60_field.npz and data/60_field.results.md.
 from functools import partial
 
 import numpy as np
-
 from _common import progress, save_npz, write_results
 
 from analysis.field_ipc import couple_source_law, measure_flats, measure_hot_pixels

@@ -5,7 +5,6 @@ data/10_law.results.md (alpha at the worked example's pairs beside the paper's t
 """
 
 import numpy as np
-
 from _common import save_npz, write_results
 
 import ipc_taichi

@@ -13,13 +13,12 @@ Writes data/40_psf.npz and data/40_psf.results.md.
 """
 
 import numpy as np
-
 from _common import progress, save_npz, write_results
 
 from analysis.fwhm import fwhm_azimuthal, fwhm_gaussian_fit, fwhm_spline
 from analysis.psf import effective_psf, jwst_f405n_psf, optical_psf, point_source_image
-from ipc_taichi import Geometry, get_law
 from analysis.simulate import EXPOSURE_TIME, MAGNITUDES, ZERO_POINT, flux_from_mag
+from ipc_taichi import Geometry, get_law
 
 O = 4
 SAMPLINGS = ("point", "integrated")

@@ -26,13 +26,18 @@ Writes data/30_random.npz and data/30_random.results.md.
 import warnings
 
 import numpy as np
+from _common import progress, save_npz, write_results
 from scipy.optimize import brentq
 
-from _common import progress, save_npz, write_results
-
 import ipc_taichi
-from analysis.deconvolution import (effective_alpha, ipc_kernel, lucy_richardson,
-                                    lucy_richardson_path, wiener_balance, wiener_filter)
+from analysis.deconvolution import (
+    effective_alpha,
+    ipc_kernel,
+    lucy_richardson,
+    lucy_richardson_path,
+    wiener_balance,
+    wiener_filter,
+)
 from ipc_taichi.datasets import uniform_frame
 
 SIZE = 512

@@ -15,9 +15,8 @@ import tempfile
 import time
 
 import numpy as np
-from astropy.io import fits
-
 from _common import save_npz, write_results
+from astropy.io import fits
 
 import ipc_taichi
 from ipc_taichi.datasets import uniform_frame

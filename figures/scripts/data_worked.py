@@ -7,7 +7,6 @@ Writes data/20_worked.npz and data/20_worked.results.md.
 """
 
 import numpy as np
-
 from _common import save_npz, write_results
 
 import ipc_taichi

@@ -6,7 +6,6 @@ Usage: plot_law.py FIGURE.png   (reads data/10_law.npz)
 import sys
 
 import numpy as np
-
 from _common import load_npz, pyplot, savefig
 
 

@@ -11,7 +11,6 @@ figures is tuned.
 import sys
 
 import numpy as np
-
 from _common import load_npz, pyplot, savefig
 
 from analysis.psf import continuous_psf

@@ -7,7 +7,6 @@ or mae_read_noise.
 import sys
 
 import numpy as np
-
 from _common import load_npz, pyplot, savefig
 
 LABEL = {"coupled": "IPC present (coupled)", "decoupled": "non-linear iterative decoupling",

@@ -3,7 +3,6 @@
 import sys
 
 import numpy as np
-
 from _common import load_npz, pyplot, savefig
 
 

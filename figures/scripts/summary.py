@@ -10,7 +10,6 @@ per row), not written by hand.
 import json
 
 import numpy as np
-
 from _common import DATA, load_npz, write_results
 
 import ipc_taichi
