@@ -12,6 +12,7 @@ truncated file at the output path, and an existing file is only replaced with
 ``overwrite=True``.
 """
 
+import json
 import os
 import tempfile
 
@@ -20,7 +21,8 @@ import numpy as np
 from .errors import IPCInputError
 from .interrupts import stop_requested
 
-__all__ = ["read_image", "write_image", "parse_hdu", "atomic_output", "check_output_path"]
+__all__ = ["read_image", "write_image", "parse_hdu", "atomic_output", "check_output_path",
+           "write_json"]
 
 # structural and scaling keywords that must not be copied onto a new float image
 _STRUCTURAL = {"SIMPLE", "XTENSION", "BITPIX", "NAXIS", "EXTEND", "PCOUNT", "GCOUNT",
@@ -176,3 +178,24 @@ def write_image(path, data, header=None, overwrite=False, keywords=None, history
                           header=output_header(header, keywords, history))
     with atomic_output(path, overwrite) as tmp:
         hdu.writeto(tmp, output_verify="silentfix")
+
+
+def write_json(path, document, overwrite=False):
+    """Write ``document`` as JSON to ``path`` atomically (:class:`atomic_output`):
+    NumPy scalars and arrays become numbers and lists, tuples lists; NaN is
+    refused (use None for "not measured"). Returns ``path``."""
+    text = json.dumps(document, indent=1, allow_nan=False, default=_json_value)
+    with atomic_output(os.fspath(path), overwrite) as tmp:
+        with open(tmp, "w", encoding="utf-8") as f:
+            f.write(text + "\n")
+    return path
+
+
+def _json_value(value):
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, tuple):
+        return list(value)
+    raise TypeError(f"cannot write {type(value).__name__} to JSON")

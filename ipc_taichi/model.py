@@ -36,12 +36,12 @@ and renames it into place, so a crash never leaves half a model.
 
 import json
 import os
-import tempfile
 from dataclasses import dataclass
 
 import numpy as np
 
 from .errors import IPCInputError, LawError
+from .fitsio import write_json
 from .geometry import Geometry
 from .laws import ParametricLaw, TabulatedLaw, check_convergence, get_law
 
@@ -247,31 +247,8 @@ class CouplingModel:
 
         Raises
         ------
-        FileExistsError
-            ``path`` exists and ``overwrite`` is false.
+        IPCInputError
+            ``path`` exists and ``overwrite`` is false, or cannot be written.
         """
-        path = os.fspath(path)
-        if os.path.exists(path) and not overwrite:
-            raise FileExistsError(f"{path}: exists (use --overwrite to replace it)")
-        text = json.dumps(self.to_dict(provenance, fit), indent=1, allow_nan=False,
-                          default=_json_value)
-        fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".json",
-                                   dir=os.path.dirname(os.path.abspath(path)))
-        try:
-            with os.fdopen(fd, "w", encoding="utf-8") as f:
-                f.write(text + "\n")
-            os.replace(tmp, path)
-        except BaseException:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
-            raise
-        return path
+        return write_json(path, self.to_dict(provenance, fit), overwrite)
 
-
-def _json_value(value):
-    """JSON for NumPy scalars and arrays."""
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    raise TypeError(f"cannot write {type(value).__name__} to a model file")

@@ -191,7 +191,7 @@ def test_calibrate_python_and_model_file(cpu, tmp_path, small_dark):
     report = json.loads((tmp_path / "r.json").read_text())
     assert report["hot_pixels"]["found"] == 8
     assert res["model"].describe() == model.describe()
-    with pytest.raises(FileExistsError, match="exists"):
+    with pytest.raises(IPCInputError, match="exists"):
         calibrate([small_dark], output=str(out), gain=2.0)
 
 

@@ -38,7 +38,7 @@ def test_round_trip_keeps_law_geometry_edge(tmp_path, make):
 def test_save_is_atomic_and_refuses_overwrite(tmp_path):
     path = tmp_path / "m.json"
     _anisotropic().save(path)
-    with pytest.raises(FileExistsError):
+    with pytest.raises(IPCInputError, match="exists"):
         _anisotropic().save(path)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["m.json"]
 

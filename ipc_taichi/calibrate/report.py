@@ -9,25 +9,14 @@ fit per point (measured, model, pull) and a list ``not_measured`` that says
 what could not be measured and why.
 """
 
-import json
 import os
-import tempfile
 
 import numpy as np
 
+from ..fitsio import write_json
 from .hotpixels import DIRECTIONS
 
-__all__ = ["write_json", "write_figures", "json_ready"]
-
-
-def _json_value(value):
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, tuple):
-        return list(value)
-    raise TypeError(f"cannot write {type(value).__name__} to a report")
+__all__ = ["write_report", "write_figures", "json_ready"]
 
 
 def json_ready(value):
@@ -41,23 +30,9 @@ def json_ready(value):
     return value
 
 
-def write_json(document, path, overwrite=False):
-    """Write ``document`` to ``path`` atomically (temporary file, then rename)."""
-    path = os.fspath(path)
-    if os.path.exists(path) and not overwrite:
-        raise FileExistsError(f"{path}: exists (use --overwrite to replace it)")
-    text = json.dumps(json_ready(document), indent=1, allow_nan=False, default=_json_value)
-    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".json",
-                               dir=os.path.dirname(os.path.abspath(path)))
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text + "\n")
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path
+def write_report(document, path, overwrite=False):
+    """Write the report ``document`` to ``path`` atomically (NaN written as null)."""
+    return write_json(path, json_ready(document), overwrite)
 
 
 def write_figures(folder, hot_rows, flat_rows, law, geometry):

@@ -11,12 +11,12 @@ with measurements it is reported beside them for comparison.
 """
 
 import datetime
-import os
 
 import numpy as np
 
 from .. import __version__
 from ..errors import IPCInputError
+from ..fitsio import check_output_path
 from ..model import CouplingModel
 from . import flats as flatmod
 from . import hotpixels, lawfit, reffiles, report
@@ -121,8 +121,8 @@ def calibrate(darks=(), flats=(), reference=None, output=None, *, report_path=No
     if not darks and not flats and reference is None:
         raise IPCInputError("calibrate needs darks, flats or a reference file")
     for path in (output, report_path):  # fail before measuring
-        if path is not None and not overwrite and os.path.exists(path):
-            raise FileExistsError(f"{path}: exists (use --overwrite to replace it)")
+        if path is not None:
+            check_output_path(path, overwrite)
     dark_frames = [read_frames(p, hdu, gain, dq_bits, refpix) for p in darks]
     flat_frames = [read_frames(p, hdu, gain, dq_bits, refpix) for p in flats]
     _check_shapes(dark_frames + flat_frames)
@@ -173,7 +173,7 @@ def calibrate(darks=(), flats=(), reference=None, output=None, *, report_path=No
         model.save(output, provenance=provenance, fit=report.json_ready(summary),
                    overwrite=overwrite)
     if report_path is not None:
-        report.write_json(document, report_path, overwrite=overwrite)
+        report.write_report(document, report_path, overwrite=overwrite)
     if figures is not None:
         document["figures"] = report.write_figures(figures, hot_rows, flat_rows, law, geometry)
     return {"model": model, "report": document, "output": output}
