@@ -78,7 +78,8 @@ RATIOS = (1.0, 0.5, 0.25, 0.125)
 OFFSETS = tuple((dx, dy) for dy in (0.0, 0.25, 0.5, 0.75) for dx in (0.0, 0.25, 0.5, 0.75))
 
 FITS = {"truth": ("truth", "truth", None), "coupled": ("coupled", "coupled", None),
-        "coupled_optical": ("coupled", "truth", None), "decoupled": ("decoupled", "decoupled", None),
+        "coupled_optical": ("coupled", "truth", None),
+        "decoupled": ("decoupled", "decoupled", None),
         "coupled_brightpsf": ("coupled", "coupled", "bright")}
 """Fit name -> (frame fitted, stage of the effective PSF used, brightness whose flux the
 PSF's IPC saw: ``None`` = the primary's own). ``coupled_brightpsf`` is the abstract's
@@ -303,7 +304,8 @@ def _grid_task(task):
     name, ratio = task["brightness"], task["ratio"]
     positions, flux, frames = pair_frames(_STATE["psf"], name, ratio, task["separation"],
                                           task["offsets"], task["law"], task["half"],
-                                          _task_seed(task), task["read_noise"], _STATE["oversample"])
+                                          _task_seed(task), task["read_noise"],
+                                          _STATE["oversample"])
     n = len(positions)
     out = {"flux_error": np.empty((len(FITS), n, 2)), "separation_error": np.empty((len(FITS), n)),
            "flags": np.empty((len(FITS), n), dtype=int),
@@ -318,9 +320,10 @@ def _grid_task(task):
                 # the bright primary's own PSF is the bright star's: the same fit; elsewhere
                 # the scenario is not run (it would cost a fifth more fits for no table)
                 same = name == "bright"
-                out["flux_error"][i, k] = out["flux_error"][list(FITS).index("coupled"), k] if same else np.nan
-                out["separation_error"][i, k] = (out["separation_error"][list(FITS).index("coupled"), k]
-                                                 if same else np.nan)
+                out["flux_error"][i, k] = (out["flux_error"][list(FITS).index("coupled"), k]
+                                           if same else np.nan)
+                out["separation_error"][i, k] = (
+                    out["separation_error"][list(FITS).index("coupled"), k] if same else np.nan)
                 out["flags"][i, k] = out["flags"][list(FITS).index("coupled"), k] if same else 0
                 continue
             frame_stage, model = _fit_psf(fit_name, name)
@@ -405,7 +408,8 @@ def fitter_choices(psf, brightness="bright", ratio=0.25, separation=3.0, offsets
     from .psf import effective_psf
 
     epsf = {"integrated": effective_psf(psf, 1.0, stage="truth", oversample=oversample),
-            "point": effective_psf(psf, 1.0, stage="truth", oversample=oversample, sampling="point")}
+            "point": effective_psf(psf, 1.0, stage="truth", oversample=oversample,
+                                   sampling="point")}
     # the point-sampled ePSF sums to o**2 only as a Riemann sum does; ImagePSF needs it exact
     epsf["point"] *= oversample ** 2 / epsf["point"].sum()
     frames = {}
@@ -416,7 +420,8 @@ def fitter_choices(psf, brightness="bright", ratio=0.25, separation=3.0, offsets
     setups = {"integrated": ("integrated", "integrated"), "point": ("point", "point"),
               "mixed": ("integrated", "point")}
     # an ungrouped fit is tried at the middle box only: its faint star slides onto the primary
-    choices = [("grouped", size) for size in fit_shapes] + [("alone", fit_shapes[len(fit_shapes) // 2])]
+    choices = ([("grouped", size) for size in fit_shapes]
+               + [("alone", fit_shapes[len(fit_shapes) // 2])])
     out = []
     for sampling, (frame_kind, psf_kind) in setups.items():
         model = image_psf(epsf[psf_kind], oversample)
@@ -433,7 +438,8 @@ def fitter_choices(psf, brightness="bright", ratio=0.25, separation=3.0, offsets
                     flux_err.append(fe)
                     sep_err.append(se)
                 flux_err, sep_err = np.array(flux_err), np.array(sep_err)
-                row[stage] = {"separation_error_mpix": [float(sep_err.mean()), float(sep_err.std())],
+                row[stage] = {"separation_error_mpix": [float(sep_err.mean()),
+                                                        float(sep_err.std())],
                               "flux_error_pct": [[float(flux_err[:, j].mean()),
                                                   float(flux_err[:, j].std())] for j in (0, 1)]}
             out.append(row)

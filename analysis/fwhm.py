@@ -146,7 +146,8 @@ def fwhm_azimuthal(psf, oversample=4, azimuths=AZIMUTHS):
     """
     a = np.asarray(psf, dtype=np.float64)
     if a.ndim != 2 or min(a.shape) < 5 or not np.all(np.isfinite(a)):
-        raise ValueError(f"psf must be a finite 2-D array of at least 5x5 samples, got shape {a.shape}")
+        raise ValueError("psf must be a finite 2-D array of at least 5x5 samples, "
+                         f"got shape {a.shape}")
     h = 1.0 / oversample
     ty, tx = np.arange(a.shape[0]) * h, np.arange(a.shape[1]) * h
     spline = RectBivariateSpline(ty, tx, a, kx=3, ky=3, s=0)

@@ -85,7 +85,8 @@ def image_psf(epsf, oversample=4):
     total = float(epsf.sum())
     if abs(total - oversample ** 2) > 1e-6 * oversample ** 2:
         raise ValueError(f"effective PSF sums to {total:.6g}, expected oversample**2 = "
-                         f"{oversample ** 2} (normalise it for ImagePSF(oversampling={oversample}))")
+                         f"{oversample ** 2} (normalise it for "
+                         f"ImagePSF(oversampling={oversample}))")
     return ImagePSF(epsf, oversampling=oversample)
 
 
@@ -138,7 +139,8 @@ def fit_stars(frame, psf_model, x_init, y_init, flux_init, fit_shape=(9, 9), min
         warnings.filterwarnings("ignore", message=".*(converge|flags).*")
         table = phot(np.asarray(frame, dtype=np.float64), init_params=init)
     order = np.argsort(np.asarray(table["id"]))
-    return StarFit(x=np.asarray(table["x_fit"], float)[order], y=np.asarray(table["y_fit"], float)[order],
+    return StarFit(x=np.asarray(table["x_fit"], float)[order],
+                   y=np.asarray(table["y_fit"], float)[order],
                    flux=np.asarray(table["flux_fit"], float)[order],
                    flags=np.asarray(table["flags"], int)[order])
 

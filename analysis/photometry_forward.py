@@ -143,7 +143,8 @@ def fit_stars_forward(frame, epsf, x_init, y_init, flux_init, law="donlon2018", 
     from scipy.optimize import least_squares
 
     frame = np.asarray(frame, dtype=np.float64)
-    x_init, y_init, flux_init = (np.atleast_1d(np.asarray(a, float)) for a in (x_init, y_init, flux_init))
+    x_init, y_init, flux_init = (np.atleast_1d(np.asarray(a, float))
+                                 for a in (x_init, y_init, flux_init))
     window = _fit_window(frame.shape, x_init, y_init, fit_shape)
     rows, cols = np.nonzero(window)
     box = (slice(max(rows.min() - _COUPLING_REACH, 0), rows.max() + _COUPLING_REACH + 1),

@@ -172,10 +172,11 @@ def read_psf_file(path, oversample=4, hdu=None):
     extension), else the first image HDU. Its detector sampling must equal
     ``oversample``: the ``DET_SAMP`` keyword when present (poppy and WebbPSF
     write the detector oversampling there), else ``OVERSAMP`` (which poppy
-    uses for the oversampling of its Fourier transforms, not of the pixels). An even-sided array (WebbPSF and
-    poppy centre those between the four middle samples) is shifted by half a
-    sample with a cubic spline and padded to an odd side so the source falls on
-    the middle element. The result is renormalised to sum 1.
+    uses for the oversampling of its Fourier transforms, not of the pixels). An
+    even-sided array (WebbPSF and poppy centre those between the four middle
+    samples) is shifted by half a sample with a cubic spline and padded to an odd
+    side so the source falls on the middle element. The result is renormalised
+    to sum 1.
     """
     from astropy.io import fits
 

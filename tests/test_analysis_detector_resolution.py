@@ -17,14 +17,15 @@ import ipc_taichi
 from analysis.psf import effective_psf, optical_psf, point_source_image
 from analysis.simulate import Source, simulate
 
-O = 4
+OVERSAMPLE = 4
 ALPHA = 0.02
 
 
 def stencil(a, step, alpha=ALPHA):
     """(1 - 4 alpha) a + alpha (4 neighbours ``step`` samples away), zero beyond the array."""
     p = np.pad(a, step)
-    n = p[:-2 * step, step:-step] + p[2 * step:, step:-step] + p[step:-step, :-2 * step] + p[step:-step, 2 * step:]
+    n = (p[:-2 * step, step:-step] + p[2 * step:, step:-step]
+         + p[step:-step, :-2 * step] + p[step:-step, 2 * step:])
     return (1 - 4 * alpha) * a + alpha * n
 
 
@@ -38,17 +39,17 @@ def interior_gap(model, coupled, margin):
 
 @pytest.fixture(scope="module")
 def psf():
-    return optical_psf("airy", O)
+    return optical_psf("airy", OVERSAMPLE)
 
 
 @pytest.mark.parametrize("sampling", ["integrated", "point"])
 def test_effective_psf_couples_detector_pixels_once(cpu, psf, sampling):
-    truth = effective_psf(psf, 1.0, "truth", oversample=O, sampling=sampling)
-    coupled = effective_psf(psf, 1.0, "coupled", law=f"constant:{ALPHA}", oversample=O,
+    truth = effective_psf(psf, 1.0, "truth", oversample=OVERSAMPLE, sampling=sampling)
+    coupled = effective_psf(psf, 1.0, "coupled", law=f"constant:{ALPHA}", oversample=OVERSAMPLE,
                             sampling=sampling)
-    detector = interior_gap(stencil(truth, O), coupled, 2 * O)
-    on_samples = interior_gap(stencil(truth, 1), coupled, 2 * O)
-    twice = interior_gap(stencil(stencil(truth, O), O), coupled, 3 * O)
+    detector = interior_gap(stencil(truth, OVERSAMPLE), coupled, 2 * OVERSAMPLE)
+    on_samples = interior_gap(stencil(truth, 1), coupled, 2 * OVERSAMPLE)
+    twice = interior_gap(stencil(stencil(truth, OVERSAMPLE), OVERSAMPLE), coupled, 3 * OVERSAMPLE)
     assert detector < 1e-9
     # the two known mistakes are far from it: at sample spacing, or applied twice
     assert on_samples > 1e-3
@@ -59,18 +60,18 @@ def test_effective_psf_with_the_law_sees_detector_counts(cpu, psf):
     """Signal-dependent coupling must see the counts of a detector pixel (the source's
     flux integrated over the pixel), not the ~oversample**2 times smaller counts of a sample."""
     flux = 2e5
-    epsf = effective_psf(psf, flux, "coupled", oversample=O)
-    size = (epsf.shape[0] - 1) // O + 1
+    epsf = effective_psf(psf, flux, "coupled", oversample=OVERSAMPLE)
+    size = (epsf.shape[0] - 1) // OVERSAMPLE + 1
     c = size // 2
-    image = point_source_image(psf, c, c, (size, size), flux, O)
+    image = point_source_image(psf, c, c, (size, size), flux, OVERSAMPLE)
     # the zero-phase samples of the effective PSF are the coupled detector image itself
-    phase0 = epsf[::O, ::O]
+    phase0 = epsf[::OVERSAMPLE, ::OVERSAMPLE]
 
     def normalised(a):
         return a / a[c, c]
 
     detector = normalised(ipc_taichi.couple(image))
-    per_sample = normalised(ipc_taichi.couple(image / O ** 2))
+    per_sample = normalised(ipc_taichi.couple(image / OVERSAMPLE ** 2))
     assert np.abs(normalised(phase0) - detector).max() < 1e-12
     # the law at sample counts (1/16 of them) couples visibly more
     assert np.abs(normalised(phase0) - per_sample).max() > 1e-4

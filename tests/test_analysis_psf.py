@@ -16,10 +16,10 @@ from analysis.psf import (
     read_psf_file,
 )
 
-O = 4
+OVERSAMPLE = 4
 
 
-def gaussian_psf(sigma, half=48, o=O, samples="point"):
+def gaussian_psf(sigma, half=48, o=OVERSAMPLE, samples="point"):
     """A unit Gaussian on the 1/o grid, sum 1: point samples, or the integrals
     over each 1/o x 1/o sub-pixel (poppy's reading of an oversampled array)."""
     t = np.arange(-half, half + 1) / o
@@ -41,7 +41,7 @@ def integrated_gaussian(sigma, offsets):
 def test_fwhm_of_gaussian_matches_analytic():
     sigma = 0.9
     psf = gaussian_psf(sigma)
-    f = fwhm_spline(psf, O)
+    f = fwhm_spline(psf, OVERSAMPLE)
     expected = 2 * math.sqrt(2 * math.log(2)) * sigma
     assert f.x == pytest.approx(expected, abs=2e-4)
     assert f.y == pytest.approx(expected, abs=2e-4)
@@ -58,39 +58,39 @@ def test_fwhm_profile_off_grid_peak():
 
 
 def test_fwhm_of_airy_disk_matches_analytic():
-    psf = airy_psf(O)
+    psf = airy_psf(OVERSAMPLE)
     lam_over_d = 4.05e-6 / 6.5 * (180 * 3600 / math.pi) / 0.063  # [px]
-    f = fwhm_spline(psf, O)
+    f = fwhm_spline(psf, OVERSAMPLE)
     assert f.x == pytest.approx(1.028993 * lam_over_d, abs=1e-3)
     assert f.y == pytest.approx(f.x, abs=1e-9)
     # the azimuthal-profile half maximum measures the same (circular) disk independently
-    assert fwhm_azimuthal(psf, O) == pytest.approx(1.028993 * lam_over_d, abs=1e-3)
+    assert fwhm_azimuthal(psf, OVERSAMPLE) == pytest.approx(1.028993 * lam_over_d, abs=1e-3)
     # poppy's measure_fwhm fits a Gaussian to every sample above 10 % of the peak: for the
     # Airy core that Gaussian is narrower than the half maximum, so it is not one
-    assert fwhm_gaussian_fit(psf, O) < 0.975 * fwhm_azimuthal(psf, O)
+    assert fwhm_gaussian_fit(psf, OVERSAMPLE) < 0.975 * fwhm_azimuthal(psf, OVERSAMPLE)
 
 
 def test_fwhm_azimuthal_of_gaussians():
     sigma = 0.9
     expected = 2 * math.sqrt(2 * math.log(2)) * sigma
-    assert fwhm_azimuthal(gaussian_psf(sigma), O) == pytest.approx(expected, abs=1e-4)
+    assert fwhm_azimuthal(gaussian_psf(sigma), OVERSAMPLE) == pytest.approx(expected, abs=1e-4)
     # a Gaussian fitted to a Gaussian is exact: the two agree only for a Gaussian PSF
-    assert fwhm_gaussian_fit(gaussian_psf(sigma), O) == pytest.approx(expected, abs=1e-3)
+    assert fwhm_gaussian_fit(gaussian_psf(sigma), OVERSAMPLE) == pytest.approx(expected, abs=1e-3)
     # off-centre peak: the centre is found, not assumed
-    t = np.arange(-40, 41) / O
+    t = np.arange(-40, 41) / OVERSAMPLE
     g = np.exp(-0.5 * ((t[:, None] - 0.13) ** 2 + (t[None, :] + 0.31) ** 2) / sigma ** 2)
-    assert fwhm_azimuthal(g, O) == pytest.approx(expected, abs=5e-4)
+    assert fwhm_azimuthal(g, OVERSAMPLE) == pytest.approx(expected, abs=5e-4)
     # elliptical: the azimuthal half maximum lies between the two axes' widths
     ell = np.exp(-0.5 * ((t[:, None] / 0.8) ** 2 + (t[None, :] / 1.1) ** 2))
-    f = fwhm_spline(ell, O)
-    assert f.y < fwhm_azimuthal(ell, O) < f.x
+    f = fwhm_spline(ell, OVERSAMPLE)
+    assert f.y < fwhm_azimuthal(ell, OVERSAMPLE) < f.x
 
 
 def test_fwhm_azimuthal_rejects_bad_input():
     with pytest.raises(ValueError, match="half its maximum"):
-        fwhm_azimuthal(np.full((9, 9), 0.6) + np.pad([[0.4]], 4), O)
+        fwhm_azimuthal(np.full((9, 9), 0.6) + np.pad([[0.4]], 4), OVERSAMPLE)
     with pytest.raises(ValueError, match="2-D"):
-        fwhm_azimuthal(np.ones(9), O)
+        fwhm_azimuthal(np.ones(9), OVERSAMPLE)
 
 
 def test_fwhm_rejects_unresolved_profile():
@@ -116,7 +116,7 @@ def test_point_source_image_is_pixel_integrated_gaussian(o, samples, tol):
 
 
 def test_point_source_image_total_is_flux_inside_frame():
-    psf = optical_psf("airy", O)
+    psf = optical_psf("airy", OVERSAMPLE)
     full = point_source_image(psf, 20, 20, (41, 41), flux=1.0)
     assert full.sum() == pytest.approx(psf.sum(), rel=1e-12)
     # a Gaussian source on the centre of the corner pixel: the frame holds the
@@ -146,13 +146,13 @@ def test_interleave_reproduces_integrated_gaussian(o, samples, tol):
 
 
 def test_interleave_point_sampling_returns_optical_psf():
-    psf = optical_psf("airy", O)
+    psf = optical_psf("airy", OVERSAMPLE)
     epsf = effective_psf(psf, 1.0, stage="truth", sampling="point", size=41)
-    assert np.allclose(epsf, O * O * psf / psf.sum(), rtol=0, atol=1e-15)
+    assert np.allclose(epsf, OVERSAMPLE * OVERSAMPLE * psf / psf.sum(), rtol=0, atol=1e-15)
 
 
 def test_decoupled_psf_equals_truth(cpu):
-    psf = optical_psf("jwst_f405n", O)
+    psf = optical_psf("jwst_f405n", OVERSAMPLE)
     truth = effective_psf(psf, 4e5, stage="truth")
     coupled = effective_psf(psf, 4e5, stage="coupled")
     decoupled = effective_psf(psf, 4e5, stage="decoupled", max_iter=40, tol=1e-14)
@@ -162,28 +162,28 @@ def test_decoupled_psf_equals_truth(cpu):
 
 
 def test_ipc_broadens_dim_more_than_bright(cpu):
-    psf = optical_psf("jwst_f405n", O)
+    psf = optical_psf("jwst_f405n", OVERSAMPLE)
     widths = [fwhm_spline(effective_psf(psf, flux, "coupled")).x for flux in (1e4, 4e5)]
     truth = fwhm_spline(effective_psf(psf, 1.0, "truth")).x
     assert widths[0] > widths[1] > truth
 
 
 def test_jwst_psf_properties():
-    psf = optical_psf("jwst_f405n", O)
+    psf = optical_psf("jwst_f405n", OVERSAMPLE)
     c = psf.shape[0] // 2
     assert psf.shape == (161, 161)
     assert psf.sum() == pytest.approx(1.0, rel=1e-12)
     assert np.unravel_index(psf.argmax(), psf.shape) == (c, c)
     # poppy's Gaussian-fit FWHM is 2.079 px on poppy's even 4x grid (docs/analysis.md), 2.075
     # on ours; the half maximum of the same PSF is 2.162 px (spline and azimuthal profile)
-    assert fwhm_gaussian_fit(psf, O) == pytest.approx(2.075, abs=0.002)
-    assert fwhm_azimuthal(psf, O) == pytest.approx(2.162, abs=0.002)
-    assert fwhm_spline(psf, O).mean == pytest.approx(2.162, abs=0.002)
+    assert fwhm_gaussian_fit(psf, OVERSAMPLE) == pytest.approx(2.075, abs=0.002)
+    assert fwhm_azimuthal(psf, OVERSAMPLE) == pytest.approx(2.162, abs=0.002)
+    assert fwhm_spline(psf, OVERSAMPLE).mean == pytest.approx(2.162, abs=0.002)
 
 
 def test_continuous_psf_interpolates_samples():
     psf = gaussian_psf(1.0, half=20)
-    spline = continuous_psf(psf, O)
+    spline = continuous_psf(psf, OVERSAMPLE)
     assert spline(0.0, 0.0)[0, 0] == pytest.approx(psf.max(), rel=1e-12)
     assert spline(0.25, -0.5)[0, 0] == pytest.approx(psf[21, 18], rel=1e-12)
 
@@ -192,7 +192,7 @@ def test_read_psf_file_even_array_recentred(tmp_path):
     from astropy.io import fits
 
     # poppy/WebbPSF convention: an even array centred between the middle samples
-    t = (np.arange(64) - 31.5) / O
+    t = (np.arange(64) - 31.5) / OVERSAMPLE
     g = np.exp(-0.5 * (t / 1.2) ** 2)
     hdu = fits.PrimaryHDU(np.outer(g, g))
     hdu.header["OVERSAMP"] = 4
@@ -215,7 +215,7 @@ def test_read_psf_file_prefers_det_samp_over_fft_oversamp(tmp_path):
     pixel); a valid 4x file with OVERSAMP = 2 must load at oversample=4."""
     from astropy.io import fits
 
-    t = (np.arange(65) - 32) / O
+    t = (np.arange(65) - 32) / OVERSAMPLE
     g = np.exp(-0.5 * (t / 1.2) ** 2)
     hdu = fits.PrimaryHDU(np.outer(g, g))
     hdu.header["OVERSAMP"] = 2

@@ -323,7 +323,8 @@ def test_discover_starts_from_a_coupling_model_file(tmp_path, cli):
     from ipc_taichi.model import CouplingModel
 
     model_file = str(tmp_path / "coupling.json")
-    CouplingModel.resolve("constant:0.012", "horizontal=1,vertical=1,diagonal=0.15").save(model_file)
+    CouplingModel.resolve("constant:0.012",
+                          "horizontal=1,vertical=1,diagonal=0.15").save(model_file)
     lab = str(tmp_path / "lab.fits")
     assert cli("simulate-lab", lab, "--size", "64", "--pairs", "1", "--seed", "3", "--model",
                model_file).returncode == 0

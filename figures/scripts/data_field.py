@@ -39,18 +39,21 @@ def main():
                                seed=SEED + k)
         hot += measure_hot_pixels([level], read_noise=READ_NOISE, seed=SEED + 100 + k)
         source += measure_flats([level], size=SIZE, n_frames=2, read_noise=READ_NOISE,
-                                seed=SEED + 200 + k, coupler=partial(couple_source_law, a_of_s=diag))
+                                seed=SEED + 200 + k,
+                                coupler=partial(couple_source_law, a_of_s=diag))
     const = measure_flats(LEVELS[[1, 4, 7]], law=f"constant:{CONSTANT}", size=SIZE,
                           n_frames=2, read_noise=READ_NOISE, seed=SEED + 300)
     arr = {f"flat_{key}": np.array([r[key] for r in flats])
            for key in ("alpha", "alpha_err", "alpha_lin", "ratio", "alpha_x", "alpha_y")}
-    arr.update({f"hot_{key}": np.array([r[key] for r in hot]) for key in ("alpha", "alpha_err", "alpha_law")})
+    arr.update({f"hot_{key}": np.array([r[key] for r in hot])
+                for key in ("alpha", "alpha_err", "alpha_law")})
     arr.update({f"source_{key}": np.array([r[key] for r in source])
                 for key in ("alpha", "alpha_err", "alpha_lin")})
     arr.update({f"const_{key}": np.array([r[key] for r in const])
                 for key in ("alpha", "alpha_err", "ratio", "level")})
     grid = np.linspace(0.0, 60000.0, 241)
-    save_npz("60_field", levels=LEVELS, grid=grid, law_diag=diag(grid), law_zero=law.alpha(grid, 0.0),
+    save_npz("60_field", levels=LEVELS, grid=grid, law_diag=diag(grid),
+             law_zero=law.alpha(grid, 0.0),
              law_diag_plus_slope=diag(grid) + grid * diag_slope(grid), constant=np.array(CONSTANT),
              **arr)
 
@@ -66,8 +69,8 @@ def main():
         f"{100 * sl:.3f} |"
         for s, a, e, d, h, he, hl, sa, se, sl in zip(
             LEVELS, arr["flat_alpha"], arr["flat_alpha_err"], alt, arr["hot_alpha"],
-            arr["hot_alpha_err"], arr["hot_alpha_law"], arr["source_alpha"], arr["source_alpha_err"],
-            arr["source_alpha_lin"]))
+            arr["hot_alpha_err"], arr["hot_alpha_law"], arr["source_alpha"],
+            arr["source_alpha_err"], arr["source_alpha_lin"]))
     crows = "\n".join(f"| {lv:.0f} | {r / (2 * CONSTANT):.3f} | {100 * a:.3f} ± {100 * e:.3f} |"
                       for lv, r, a, e in zip(arr["const_level"], arr["const_ratio"],
                                              arr["const_alpha"], arr["const_alpha_err"]))
@@ -93,20 +96,26 @@ alpha(S, S), the diagonal of the law, and nothing of alpha(S, N) for N != S. The
 `d[a(S) S]/dS = a + S a'`; we simulate such a law too (last columns; a(S) = alpha(S, S) of
 `donlon2018`).
 
-| level S [e-] | law alpha(S, S) [%] | flat: measured alpha [%] | alpha(S,S) + S d/dS alpha(S,S) [%] | hot pixel: measured [%] | law alpha(S, 0) [%] | sender-only law, flat: measured [%] | its a + S a' [%] |
+| level S [e-] | law alpha(S, S) [%] | flat: measured alpha [%] | \
+alpha(S,S) + S d/dS alpha(S,S) [%] | hot pixel: measured [%] | \
+law alpha(S, 0) [%] | sender-only law, flat: measured [%] | its a + S a' [%] |
 |---|---|---|---|---|---|---|---|
 {rows}
 
-Flats against alpha(S, S): |z| <= {np.abs(z_lin).max():.1f} over the {len(LEVELS)} levels (z = difference
+Flats against alpha(S, S): |z| <= {np.abs(z_lin).max():.1f} \
+over the {len(LEVELS)} levels (z = difference
 over its standard error). Against "alpha + S x slope of the diagonal": |z| up to
-{np.abs(z_alt).max():.1f} (it differs by up to {100 * np.abs(alt - diag(LEVELS)).max():.2f} % in alpha),
+{np.abs(z_alt).max():.1f} (it differs by up to \
+{100 * np.abs(alt - diag(LEVELS)).max():.2f} % in alpha),
 so the simulated flats reject that form for this law. Hot pixels against alpha(S, 0): |z| <=
-{np.abs(z_hot).max():.1f}. Sender-only law: flats against a + S a', |z| <= {np.abs(z_src).max():.1f};
+{np.abs(z_hot).max():.1f}. Sender-only law: flats \
+against a + S a', |z| <= {np.abs(z_src).max():.1f};
 against a(S), |z| up to {np.abs(z_src_a).max():.1f}.
 
 Control, constant alpha = {100 * CONSTANT:g} %: nearest-neighbour covariance over variance, in units
 of 2 alpha (1 = "twice alpha times the variance"; the exact value for the kernel is
-(1 - 4a) / ((1 - 4a)^2 + 4a^2) = {(1 - 4 * CONSTANT) / ((1 - 4 * CONSTANT) ** 2 + 4 * CONSTANT ** 2):.3f}
+(1 - 4a) / ((1 - 4a)^2 + 4a^2) = \
+{(1 - 4 * CONSTANT) / ((1 - 4 * CONSTANT) ** 2 + 4 * CONSTANT ** 2):.3f}
 before read noise), and the alpha recovered:
 
 | level [e-] | covariance / (2 alpha variance) | recovered alpha [%] |
@@ -114,7 +123,8 @@ before read noise), and the alpha recovered:
 {crows}
 
 What each method would report. Flats at several levels trace alpha(S, S): from
-{100 * diag(LEVELS[0]):.2f} % at {LEVELS[0]:.0f} e- to {100 * diag(LEVELS[-1]):.2f} % at {LEVELS[-1]:.0f} e-.
+{100 * diag(LEVELS[0]):.2f} % at {LEVELS[0]:.0f} e- to \
+{100 * diag(LEVELS[-1]):.2f} % at {LEVELS[-1]:.0f} e-.
 Hot pixels on a dark background trace alpha(S, 0): from {100 * arr['hot_alpha_law'][0]:.2f} % to
 {100 * arr['hot_alpha_law'][-1]:.2f} %, lower than the flat at the same level by up to
 {100 * np.max(diag(LEVELS) - arr['hot_alpha_law']):.2f} %. Neither sees the rest of the law (a pixel

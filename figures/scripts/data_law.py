@@ -21,10 +21,12 @@ def main():
     line = np.linspace(0.0, 60000.0, 601)
     save_npz("10_law", signal=signal, alpha=100 * law.alpha(s, n),
              alpha_printed=100 * printed.alpha(s, n), line=line,
-             line_alpha=100 * law.alpha(line, 0.0), line_alpha_printed=100 * printed.alpha(line, 0.0))
+             line_alpha=100 * law.alpha(line, 0.0),
+             line_alpha_printed=100 * printed.alpha(line, 0.0))
 
     rows = "\n".join(
-        f"| {a:>6}, {b:<6} | {p:.2f} | {100 * law.alpha(a, b):.5f} | {100 * printed.alpha(a, b):.4f} |"
+        f"| {a:>6}, {b:<6} | {p:.2f} | {100 * law.alpha(a, b):.5f} | "
+        f"{100 * printed.alpha(a, b):.4f} |"
         for (a, b), p in zip(PAIRS, PAPER))
     minimum = 100 * law.alpha(s, n).min()
     minimum_printed = 100 * printed.alpha(s, n).min()
@@ -34,7 +36,8 @@ def main():
 Figures: `alpha_surface.png` (paper Fig. 2.3.1), `alpha_zero_background.png` (Fig. 2.3.2).
 Data: `data/10_law.npz` (`figures/scripts/data_law.py`).
 
-| pair (S, N) | paper's table [%] | ours, `donlon2018` (20000 sqrt2) [%] | printed Eq. 7 (10000 sqrt2) [%] |
+| pair (S, N) | paper's table [%] | \
+ours, `donlon2018` (20000 sqrt2) [%] | printed Eq. 7 (10000 sqrt2) [%] |
 |---|---|---|---|
 {rows}
 

@@ -20,7 +20,7 @@ from analysis.psf import effective_psf, jwst_f405n_psf, optical_psf, point_sourc
 from analysis.simulate import EXPOSURE_TIME, MAGNITUDES, ZERO_POINT, flux_from_mag
 from ipc_taichi import Geometry, get_law
 
-O = 4
+OVERSAMPLE = 4
 SAMPLINGS = ("point", "integrated")
 LEVELS = ("bright", "mid", "dim")
 STATIC = "constant:0.08"
@@ -31,8 +31,9 @@ SCALES = (0.063, 0.065)
 # sides leaves ~3 % for the 4 diagonals, 0.75 % each = 0.09375 x 8 %
 DIAGONAL = Geometry.terms(diagonal=0.75 / 8)
 GRID_ROWS = ("truth", "dim", "mid", "bright", "static8", "static8_diag")
-FWHM = {"spline": lambda e: fwhm_spline(e, O).mean, "azimuthal": lambda e: fwhm_azimuthal(e, O),
-        "gaussian-fit": lambda e: fwhm_gaussian_fit(e, O)}
+FWHM = {"spline": lambda e: fwhm_spline(e, OVERSAMPLE).mean,
+        "azimuthal": lambda e: fwhm_azimuthal(e, OVERSAMPLE),
+        "gaussian-fit": lambda e: fwhm_gaussian_fit(e, OVERSAMPLE)}
 ESTIMATORS = tuple((smp, est) for smp in SAMPLINGS for est in FWHM)
 
 
@@ -40,17 +41,18 @@ def fwhm_grid(fluxes):
     """FWHM of each paper row for pixel scale x detector model x estimator x 8 % kernel."""
     out, keep = {}, {}
     for scale in SCALES:
-        psf = jwst_f405n_psf(O, pixel_scale=scale)[0]
+        psf = jwst_f405n_psf(OVERSAMPLE, pixel_scale=scale)[0]
         for sampling in SAMPLINGS:
             for row in GRID_ROWS:
                 if row == "truth":
-                    epsf = effective_psf(psf, 1.0, "truth", oversample=O, sampling=sampling)
+                    epsf = effective_psf(psf, 1.0, "truth", oversample=OVERSAMPLE,
+                                         sampling=sampling)
                 elif row.startswith("static8"):
-                    epsf = effective_psf(psf, 1.0, "coupled", law=STATIC, oversample=O,
+                    epsf = effective_psf(psf, 1.0, "coupled", law=STATIC, oversample=OVERSAMPLE,
                                          sampling=sampling,
                                          geometry=DIAGONAL if row.endswith("diag") else None)
                 else:
-                    epsf = effective_psf(psf, fluxes[row], "coupled", oversample=O,
+                    epsf = effective_psf(psf, fluxes[row], "coupled", oversample=OVERSAMPLE,
                                          sampling=sampling)
                 for est, measure in FWHM.items():
                     out[(scale, sampling, est, row)] = measure(epsf)
@@ -62,7 +64,8 @@ def fwhm_grid(fluxes):
 def grid_text(grid):
     """Markdown: the grid, and which cell comes nearest to each paper row."""
     head = " | ".join(f'{sc}"/px {smp[:5]}. {est}' for sc in SCALES for smp, est in ESTIMATORS)
-    lines = [f"| PSF | paper [px] | {head} |", "|---|---|" + "---|" * (len(SCALES) * len(ESTIMATORS))]
+    lines = [f"| PSF | paper [px] | {head} |",
+             "|---|---|" + "---|" * (len(SCALES) * len(ESTIMATORS))]
     paper = dict(PAPER_FWHM, static8_diag=PAPER_FWHM["static8"])
     label = {"truth": "optical / truth", "static8": "static 8 %, 4 neighbours",
              "static8_diag": "static 8 %, + diagonals 0.75 %"}
@@ -76,7 +79,8 @@ def grid_text(grid):
                 d = abs(v - paper[row])
                 if row not in best or d < best[row][0]:
                     best[row] = (d, sc, smp, est, v)
-        lines.append(f"| {label.get(row, row + ', coupled')} | {paper[row]:.3f} | " + " | ".join(cells) + " |")
+        lines.append(f"| {label.get(row, row + ', coupled')} | {paper[row]:.3f} | "
+                     + " | ".join(cells) + " |")
     lines += ["", "| paper row | nearest cell | ours | difference [px] | paper broadening | "
               "that cell's broadening |", "|---|---|---|---|---|---|"]
     for row in GRID_ROWS:
@@ -90,34 +94,39 @@ def grid_text(grid):
 
 def crop(epsf):
     c = epsf.shape[0] // 2
-    r = CROP * O
+    r = CROP * OVERSAMPLE
     return epsf[c - r:c + r + 1, c - r:c + r + 1]
 
 
 def main():
-    psf = optical_psf("jwst_f405n", O)
+    psf = optical_psf("jwst_f405n", OVERSAMPLE)
     fluxes = {k: float(flux_from_mag(m)) for k, m in MAGNITUDES.items()}
-    arrays = {"optical": crop(psf * O * O)}
+    arrays = {"optical": crop(psf * OVERSAMPLE * OVERSAMPLE)}
     meas = {}
     jobs = [(s, name) for s in SAMPLINGS for name in
-            ["truth", "static8", "static8_diag"] + [f"{lv}_{st}" for lv in LEVELS for st in ("coupled", "decoupled")]]
+            ["truth", "static8", "static8_diag"]
+            + [f"{lv}_{st}" for lv in LEVELS for st in ("coupled", "decoupled")]]
     for sampling, name in progress(jobs, "effective PSFs"):
         if name == "truth":
-            epsf = effective_psf(psf, 1.0, "truth", oversample=O, sampling=sampling)
+            epsf = effective_psf(psf, 1.0, "truth", oversample=OVERSAMPLE, sampling=sampling)
         elif name.startswith("static8"):
-            epsf = effective_psf(psf, 1.0, "coupled", law=STATIC, oversample=O, sampling=sampling,
+            epsf = effective_psf(psf, 1.0, "coupled", law=STATIC, oversample=OVERSAMPLE,
+                                 sampling=sampling,
                                  geometry=DIAGONAL if name.endswith("diag") else None)
         else:
             level, stage = name.split("_")
-            epsf = effective_psf(psf, fluxes[level], stage, oversample=O, sampling=sampling)
-        f = fwhm_spline(epsf, O)
+            epsf = effective_psf(psf, fluxes[level], stage, oversample=OVERSAMPLE,
+                                 sampling=sampling)
+        f = fwhm_spline(epsf, OVERSAMPLE)
         meas[(sampling, name)] = dict(x=f.x, y=f.y, mean=f.mean, peak=f.peak,
                                       azimuthal=FWHM["azimuthal"](epsf),
                                       gaussian=FWHM["gaussian-fit"](epsf))
         arrays[f"{sampling}_{name}"] = crop(epsf)
-    images = {k: point_source_image(psf, 20, 20, (41, 41), v, O) for k, v in fluxes.items()}
+    images = {k: point_source_image(psf, 20, 20, (41, 41), v, OVERSAMPLE)
+              for k, v in fluxes.items()}
     central = {k: float(im[20, 20]) for k, im in images.items()}
-    central_point = {k: float(point_source_image(psf, 20, 20, (41, 41), v, O, "point")[20, 20])
+    central_point = {k: float(point_source_image(psf, 20, 20, (41, 41), v, OVERSAMPLE,
+                                                 "point")[20, 20])
                      for k, v in fluxes.items()}
     grid, kept = fwhm_grid(fluxes)
     arrays.update(kept)
@@ -134,11 +143,11 @@ def main():
     # alpha between the central pixel and its brightest neighbour, per source
     law = get_law("donlon2018")
     alpha_core = {k: 100 * float(law.alpha(im[20, 20], im[20, 21])) for k, im in images.items()}
-    optical = fwhm_spline(psf, O)
-    optical_gauss = fwhm_gaussian_fit(psf, O)
-    optical_azim = fwhm_azimuthal(psf, O)
+    optical = fwhm_spline(psf, OVERSAMPLE)
+    optical_gauss = fwhm_gaussian_fit(psf, OVERSAMPLE)
+    optical_azim = fwhm_azimuthal(psf, OVERSAMPLE)
     keys = sorted(meas)
-    save_npz("40_psf", oversample=np.array(O), crop=np.array(CROP), **arrays,
+    save_npz("40_psf", oversample=np.array(OVERSAMPLE), crop=np.array(CROP), **arrays,
              fwhm_keys=np.array([f"{s}_{n}" for s, n in keys]),
              fwhm_x=np.array([meas[k]["x"] for k in keys]),
              fwhm_y=np.array([meas[k]["y"] for k in keys]),
@@ -160,17 +169,20 @@ def main():
 
     def cells(n):
         m = {s: meas[(s, n)] for s in SAMPLINGS}
-        return " | ".join(f"{m[s][k]:.3f}" for k in ("mean", "azimuthal", "gaussian") for s in SAMPLINGS)
+        return " | ".join(f"{m[s][k]:.3f}" for k in ("mean", "azimuthal", "gaussian")
+                          for s in SAMPLINGS)
 
     label1 = {"truth": ("optical / truth", "2.080 (WebbPSF)"),
               "static8": ("static alpha = 8 %, 4 neighbours", "2.249"),
               "static8_diag": ("static alpha = 8 %, + diagonals 0.75 %", "2.249")}
-    names1 = (["truth"] + [f"{lv}_coupled" for lv in ("dim", "mid", "bright")] + ["static8", "static8_diag"]
+    names1 = (["truth"] + [f"{lv}_coupled" for lv in ("dim", "mid", "bright")]
+              + ["static8", "static8_diag"]
               + [f"{lv}_decoupled" for lv in ("dim", "mid", "bright")])
     rows = []
     for n in names1:
         lab, pap = label1.get(n, (n.replace("_", ", "), f"{PAPER_FWHM[n.split('_')[0]]:.3f}"
-                                  if n.endswith("coupled") and not n.endswith("decoupled") else "= truth"))
+                                  if n.endswith("coupled") and not n.endswith("decoupled")
+                                  else "= truth"))
         rows.append(f"| {lab} | {pap} | {cells(n)} |")
     table1 = "\n".join(rows)
 
@@ -187,10 +199,11 @@ def main():
     table2 = "\n".join(rows)
     bvd = {s: 100 * (meas[(s, "bright_coupled")]["peak"] - meas[(s, "dim_coupled")]["peak"])
            / meas[(s, "truth")]["peak"] for s in SAMPLINGS}
-    dec_err = max(abs(fw(s, lv + "_decoupled") - fw(s, "truth")) for s in SAMPLINGS for lv in LEVELS)
+    dec_err = max(abs(fw(s, lv + "_decoupled") - fw(s, "truth"))
+                  for s in SAMPLINGS for lv in LEVELS)
     xy = max(abs(m["x"] - m["y"]) for m in meas.values())
-    order = all(fw(s, "dim_coupled") > fw(s, "mid_coupled") > fw(s, "bright_coupled") > fw(s, "truth")
-                for s in SAMPLINGS)
+    order = all(fw(s, "dim_coupled") > fw(s, "mid_coupled") > fw(s, "bright_coupled")
+                > fw(s, "truth") for s in SAMPLINGS)
     src = "\n".join(f"| {lv} | {MAGNITUDES[lv]} | {fluxes[lv]:.4g} | {central[lv]:.0f} |"
                     for lv in LEVELS)
     write_results("40_psf", f"""
@@ -228,7 +241,9 @@ function), the FWHM of a Gaussian in radius fitted to every sample above 10 % of
 for this Airy-like core it comes out ~4 % narrower than either half-maximum width, so it is
 not a half-maximum measurement. (Earlier versions of this file called it "radial"; it is not.)
 
-| PSF | paper FWHM [px] | point-sampled, spline | pixel-integrated, spline | point-sampled, azimuthal | pixel-integrated, azimuthal | point-sampled, Gaussian fit | pixel-integrated, Gaussian fit |
+| PSF | paper FWHM [px] | point-sampled, spline | pixel-integrated, spline | \
+point-sampled, azimuthal | pixel-integrated, azimuthal | \
+point-sampled, Gaussian fit | pixel-integrated, Gaussian fit |
 |---|---|---|---|---|---|---|---|
 {table1}
 
@@ -240,7 +255,9 @@ a sample (poppy on its own even 4x grid: 2.079 px); azimuthal {optical_azim:.3f}
 Broadening relative to each estimator's own truth row, and the peak drop (cross section
 through the peak):
 
-| PSF | paper: FWHM broadening | point, Gaussian fit (the cell that matches 2.080) | point, spline | point, azimuthal | integrated, spline | paper: peak drop | ours: point | ours: integrated |
+| PSF | paper: FWHM broadening | point, Gaussian fit (the cell that matches 2.080) | \
+point, spline | point, azimuthal | integrated, spline | \
+paper: peak drop | ours: point | ours: integrated |
 |---|---|---|---|---|---|---|---|---|
 {table2}
 
@@ -263,19 +280,28 @@ the diagonals). Fluxes as above at both scales.
 {grid_table}
 
 What the grid says, as strongly as it can: (1) the paper's 2.080 px is matched within
-{best['truth'][0]:.3f} px by the cell {best['truth'][1]}"/px, {best['truth'][2]}, {best['truth'][3]}; at the
+{best['truth'][0]:.3f} px by the cell {best['truth'][1]}"/px, \
+{best['truth'][2]}, {best['truth'][3]}; at the
 paper's own implied scale (0.065"/px) no cell gives 2.080 (point Gaussian fit
-{grid[(0.065, 'point', 'gaussian-fit', 'truth')]:.3f}, point spline {grid[(0.065, 'point', 'spline', 'truth')]:.3f},
+{grid[(0.065, 'point', 'gaussian-fit', 'truth')]:.3f}, \
+point spline {grid[(0.065, 'point', 'spline', 'truth')]:.3f},
 point azimuthal {grid[(0.065, 'point', 'azimuthal', 'truth')]:.3f},
-integrated spline {grid[(0.065, 'integrated', 'spline', 'truth')]:.3f}). The paper's 2.080 is therefore
+integrated spline {grid[(0.065, 'integrated', 'spline', 'truth')]:.3f}). \
+The paper's 2.080 is therefore
 matched by a Gaussian fitted to the samples, probably WebbPSF's `measure_fwhm` (the same
 code as poppy's), not by a half maximum of the profile: at 0.063"/px, point-sampled, the
-spline gives {grid[(0.063, 'point', 'spline', 'truth')]:.3f} px and the azimuthal profile {grid[(0.063, 'point', 'azimuthal', 'truth')]:.3f} px (a likely reading,
+spline gives {grid[(0.063, 'point', 'spline', 'truth')]:.3f} px and the azimuthal \
+profile {grid[(0.063, 'point', 'azimuthal', 'truth')]:.3f} px (a likely reading,
 since the paper used WebbPSF; the paper does not name its estimator). (2) In that same cell the
-coupled rows are {same['bright']:.3f} / {same['mid']:.3f} / {same['dim']:.3f} px (paper 2.169 / 2.180 / 2.186)
-and the static 8 % row is {same['static8']:.3f} px with 4 neighbours, {same['static8_diag']:.3f} px with
+coupled rows are {same['bright']:.3f} / {same['mid']:.3f} \
+/ {same['dim']:.3f} px (paper 2.169 / 2.180 / 2.186)
+and the static 8 % row is {same['static8']:.3f} px \
+with 4 neighbours, {same['static8_diag']:.3f} px with
 the diagonals (paper 2.249): with the diagonals the 8 % row comes within
-{abs(same['static8_diag'] - 2.249):.3f} px and broadens by {100 * (same['static8_diag'] / same['truth'] - 1):.1f} % (paper 8.1 %), the IPC rows stay {min(PAPER_FWHM[r] - same[r] for r in LEVELS):.3f}-{max(PAPER_FWHM[r] - same[r] for r in LEVELS):.3f} px short. The single cell that
+{abs(same['static8_diag'] - 2.249):.3f} px and broadens by \
+{100 * (same['static8_diag'] / same['truth'] - 1):.1f} % (paper 8.1 %), the IPC rows stay \
+{min(PAPER_FWHM[r] - same[r] for r in LEVELS):.3f}-\
+{max(PAPER_FWHM[r] - same[r] for r in LEVELS):.3f} px short. The single cell that
 fits all five paper rows best ({single[1]}"/px, {single[2]}, {single[3]}, {single[4]}) still misses
 one row by {single[0]:.3f} px. (3) No cell reproduces the paper's broadening: with this law the
 widest broadening in any cell is {widest:.2f} % (the dim source), where the paper has 4.3-5.1 %.
@@ -286,15 +312,19 @@ the explanation; that was too strong). The static 8 % row alone is matched by se
 cells, with and without diagonals, so it does not decide the kernel either.
 (4) The abstract's 2.080 -> 2.186, the 1.2-1.4 % peak drop for all
 sources and the 0.15 % bright-versus-dim difference stay unreproduced: our bright peak drops
-by {drop('point', 'bright_coupled'):.2f} %, our dim peak by {drop('point', 'dim_coupled'):.2f} % (point-sampled);
+by {drop('point', 'bright_coupled'):.2f} %, our dim peak \
+by {drop('point', 'dim_coupled'):.2f} % (point-sampled);
 with this law alpha between the central pixel and its neighbour is
 {alpha_core['bright']:.2f} % for the bright source and {alpha_core['dim']:.2f} % for the dim one
-(central pixels {central['bright']:.0f} and {central['dim']:.0f} e-), and the peak drop follows alpha.
+(central pixels {central['bright']:.0f} and \
+{central['dim']:.0f} e-), and the peak drop follows alpha.
 The paper does not give its sources in counts, so a different flux scale is one open
 alternative. (5) Pixel integration alone widens the PSF by
-{fw('integrated', 'truth') - fw('point', 'truth'):.3f} px (spline, 0.063"/px); the paper's model omits it.
+{fw('integrated', 'truth') - fw('point', 'truth'):.3f} \
+px (spline, 0.063"/px); the paper's model omits it.
 (6) The zero point is set for the pixel-integrated detector (60000 e- in the bright star's
-central pixel); in the point-sampled model the same star puts {central_point['bright']:.0f} e- there,
+central pixel); in the point-sampled model the same \
+star puts {central_point['bright']:.0f} e- there,
 above the 60000 e- the zero point assumes.
 """)
 

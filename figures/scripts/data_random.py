@@ -46,7 +46,8 @@ READ_NOISE = np.array([0, 20, 40, 60, 80, 100, 200, 400, 800, 1600, 3200])
 PAPER_RANGE = READ_NOISE <= 100
 ORACLE_AT = (0, 800)
 LR_ITER = 30
-LR_TOL = 1e-6  # LR's convergence: the largest change of one iteration below 1e-6 of the frame maximum
+# LR's convergence: the largest change of one iteration below 1e-6 of the frame maximum
+LR_TOL = 1e-6
 LR_MAX_ITER = 300
 ORACLE_ITERS = (10, 30, 100)  # and the iterate at convergence (or LR_MAX_ITER)
 ORACLE_ALPHAS = (0.006, 0.007, 0.0075, 0.008, 0.0085, 0.009, 0.010, 0.012)
@@ -139,7 +140,8 @@ def main():
                                             max_iter=LR_MAX_ITER)
                 lr_trials += [(float(np.abs(r - truth).mean()), a, it)
                               for it, r in zip(path.iterations, path.restored)]
-                w_trials += [(float(np.abs(wiener_filter(coupled, ipc_kernel(a), b) - truth).mean()), a, b)
+                w_trials += [(float(np.abs(wiener_filter(coupled, ipc_kernel(a), b)
+                                           - truth).mean()), a, b)
                              for b in BALANCES]
             oracle[int(sigma)] = {"lr": min(lr_trials), "wiener": min(w_trials),
                                   "lr_at": {(a, it): v for v, a, it in lr_trials},
@@ -150,12 +152,14 @@ def main():
             inner = (slice(EDGE, -EDGE),) * 2
             notes["lr_converged_iter"] = [path.iterations[-1]]
             notes["mae_lr_converged"] = [float(np.abs(path.restored[-1] - truth).mean())]
-            notes["mae_lr_converged_inner"] = [float(np.abs(path.restored[-1] - truth)[inner].mean())]
+            notes["mae_lr_converged_inner"] = [
+                float(np.abs(path.restored[-1] - truth)[inner].mean())]
             notes["mae_lr_inner"] = [float(np.abs(lr - truth)[inner].mean())]
             notes["mae_wiener_inner"] = [float(np.abs(wiener - truth)[inner].mean())]
             gap = np.abs(path.restored[-1] - wiener)[inner]
             notes["lr_wiener_inner_max"] = [float(gap.max())]
-            # where the inverse filter goes below zero LR (non-negative by construction) cannot follow
+            # where the inverse filter goes below zero LR (non-negative by construction) cannot
+            # follow
             notes["wiener_negative"] = [int(np.count_nonzero(wiener < 0))]
             notes["lr_wiener_inner_max_nonneg"] = [float(gap[wiener[inner] >= 0].max())]
             plain = effective_plain_alpha(coupled)
@@ -171,7 +175,8 @@ def main():
     # the read noise at which LR's MAE meets decoupling's (linear interpolation of the difference)
     diff = mae["decoupled"] - mae["lr"]
     cross = np.nonzero((diff[:-1] < 0) & (diff[1:] >= 0))[0]
-    crossover = (float(np.interp(0.0, diff[cross[0]:cross[0] + 2], READ_NOISE[cross[0]:cross[0] + 2]))
+    crossover = (float(np.interp(0.0, diff[cross[0]:cross[0] + 2],
+                                 READ_NOISE[cross[0]:cross[0] + 2]))
                  if cross.size else float("nan"))
     at800 = int(np.nonzero(READ_NOISE == 800)[0][0])
 
@@ -201,7 +206,8 @@ def main():
         for k, s in enumerate(READ_NOISE))
     orows = "\n".join(
         f"| {s} | {fmt(mae['lr'][list(READ_NOISE).index(s)])} | {fmt(o['lr'][0])} (alpha "
-        f"{100 * o['lr'][1]:.3g} %, {o['lr'][2]} iterations) | {fmt(mae['wiener'][list(READ_NOISE).index(s)])} | "
+        f"{100 * o['lr'][1]:.3g} %, {o['lr'][2]} iterations) | "
+        f"{fmt(mae['wiener'][list(READ_NOISE).index(s)])} | "
         f"{fmt(o['wiener'][0])} (alpha {100 * o['wiener'][1]:.3g} %, balance {o['wiener'][2]:g}) | "
         f"{fmt(mae['decoupled'][list(READ_NOISE).index(s)])} |"
         for s, o in sorted(oracle.items()))
@@ -249,28 +255,41 @@ LR (count in the table).
 | quantity (zero read noise) | paper | ours |
 |---|---|---|
 | mean abs(coupled - true) | ~719 | {mae['coupled'][0]:.1f} |
-| max abs(coupled - true) | ~3000 (overestimate) | {coupled_max:.0f} (range {extremes['coupled'][0]:.0f} .. {extremes['coupled'][1]:.0f}) |
+| max abs(coupled - true) | ~3000 (overestimate) | \
+{coupled_max:.0f} (range {extremes['coupled'][0]:.0f} .. {extremes['coupled'][1]:.0f}) |
 | max abs(decoupled - true) | ~0.075 | {max(map(abs, extremes['decoupled'])):.4f} |
 | mean abs(decoupled - true) | (not given) | {mae['decoupled'][0]:.2g} |
 | mean abs(LR - true), {LR_ITER} iterations | ~134 (133.8) | {mae['lr'][0]:.1f} |
-| mean abs(LR - true), converged ({notes['lr_converged_iter'][0]} iterations, largest change < {LR_TOL:g} of the maximum) | (not given) | {notes['mae_lr_converged'][0]:.2f} |
-| max abs(LR - true) | ~1000 (overestimate) | {max(map(abs, extremes['lr'])):.0f} (range {extremes['lr'][0]:.0f} .. {extremes['lr'][1]:.0f}) |
-| mean abs(Wiener - true) (balance 0: the inverse filter) | (not in the paper) | {mae['wiener'][0]:.1f} |
-| the same {EDGE} px from the frame's edges: LR {LR_ITER} it. / LR converged / Wiener | | {notes['mae_lr_inner'][0]:.2f} / {notes['mae_lr_converged_inner'][0]:.2f} / {notes['mae_wiener_inner'][0]:.2f} |
+| mean abs(LR - true), converged ({notes['lr_converged_iter'][0]} iterations, \
+largest change < {LR_TOL:g} of the maximum) | (not given) | {notes['mae_lr_converged'][0]:.2f} |
+| max abs(LR - true) | ~1000 (overestimate) | \
+{max(map(abs, extremes['lr'])):.0f} (range {extremes['lr'][0]:.0f} .. {extremes['lr'][1]:.0f}) |
+| mean abs(Wiener - true) (balance 0: the inverse filter) | \
+(not in the paper) | {mae['wiener'][0]:.1f} |
+| the same {EDGE} px from the frame's edges: LR {LR_ITER} it. / LR converged / Wiener | \
+| {notes['mae_lr_inner'][0]:.2f} / {notes['mae_lr_converged_inner'][0]:.2f} / \
+{notes['mae_wiener_inner'][0]:.2f} |
 
 **LR at zero read noise is converged, and does not converge to Wiener.** At zero read
 noise the Wiener rule is the inverse filter of the kernel. LR with the same kernel moves
-from {mae['lr'][0]:.2f} at {LR_ITER} iterations to {notes['mae_lr_converged'][0]:.2f} at convergence ({notes['lr_converged_iter'][0]}
+from {mae['lr'][0]:.2f} at {LR_ITER} iterations to \
+{notes['mae_lr_converged'][0]:.2f} at convergence ({notes['lr_converged_iter'][0]}
 iterations): further iterations make it slightly *worse*, so Wiener's
-{mae['wiener'][0]:.2f} against LR's {mae['lr'][0]:.2f} is not LR stopped early. Away from the frame's edges LR
-is the better of the two ({notes['mae_lr_converged_inner'][0]:.2f} against {notes['mae_wiener_inner'][0]:.2f}); the whole-frame
+{mae['wiener'][0]:.2f} against LR's {mae['lr'][0]:.2f} \
+is not LR stopped early. Away from the frame's edges LR
+is the better of the two ({notes['mae_lr_converged_inner'][0]:.2f} \
+against {notes['mae_wiener_inner'][0]:.2f}); the whole-frame
 difference comes from the edge pixels, where the two see the zeros beyond the frame
 differently (Wiener restores into its padding, LR cannot). Inside the frame too LR's fixed
-point is not the inverse filter: they differ by up to {notes['lr_wiener_inner_max'][0]:.0f} e- ({notes['lr_wiener_inner_max_nonneg'][0]:.0f} e- away from
-the {notes['wiener_negative'][0]} pixels that the inverse filter puts below zero, where LR, non-negative by
+point is not the inverse filter: they differ by up to {notes['lr_wiener_inner_max'][0]:.0f} \
+e- ({notes['lr_wiener_inner_max_nonneg'][0]:.0f} e- away from
+the {notes['wiener_negative'][0]} pixels that the \
+inverse filter puts below zero, where LR, non-negative by
 construction, cannot follow). Both are limited by the constant kernel, not by their tuning.
 
-| read noise RMS | MAE coupled (paper ~719, flat) | MAE decoupled (paper 0 -> 5 over 0 -> 100, linear) | MAE LR (paper 133.8 -> 134.0) | MAE Wiener | decouple iterations | Wiener balance (rule) | pixels < 0 set to 0 for LR |
+| read noise RMS | MAE coupled (paper ~719, flat) | \
+MAE decoupled (paper 0 -> 5 over 0 -> 100, linear) | MAE LR (paper 133.8 -> 134.0) | \
+MAE Wiener | decouple iterations | Wiener balance (rule) | pixels < 0 set to 0 for LR |
 |---|---|---|---|---|---|---|---|
 {rows}
 
@@ -279,12 +298,17 @@ Decoupled MAE is linear in read noise over 0-100 RMS: slope {slope[0]:.4f} per R
 {' < '.join(f"{m} ({mae[m][0]:.3g})" for m in sorted(METHODS, key=lambda m: mae[m][0]))}.
 
 **Oracle bounds, the same freedom for both** (tuned against the truth, to show what
-tuning could buy): the kernel alpha for both, over {', '.join(f'{100 * a:g}' for a in ORACLE_ALPHAS)} %
-and the rule's; LR's iteration count over {', '.join(map(str, ORACLE_ITERS))} and its last iterate (converged, largest
+tuning could buy): the kernel alpha for both, over \
+{', '.join(f'{100 * a:g}' for a in ORACLE_ALPHAS)} %
+and the rule's; LR's iteration count over \
+{', '.join(map(str, ORACLE_ITERS))} and its last iterate (converged, largest
 change < {LR_TOL:g} of the maximum, or {LR_MAX_ITER}); Wiener's balance over
 {', '.join(f'{b:g}' for b in BALANCES)}. (An earlier version let LR tune its kernel and Wiener only
 its balance, which made LR's oracle look better than Wiener's; with equal freedom
-{'Wiener' if all(o['wiener'][0] < o['lr'][0] for o in oracle.values()) else 'neither'}'s oracle is the better at {' and '.join(f"{s} RMS ({fmt(o['wiener'][0])} against {fmt(o['lr'][0])})" for s, o in sorted(oracle.items()))}.)
+{'Wiener' if all(o['wiener'][0] < o['lr'][0] for o in oracle.values()) else 'neither'}'s \
+oracle is the better at \
+{' and '.join(f"{s} RMS ({fmt(o['wiener'][0])} against {fmt(o['lr'][0])})"
+              for s, o in sorted(oracle.items()))}.)
 
 | read noise RMS | LR, rule | LR, oracle | Wiener, rule | Wiener, oracle | decoupled |
 |---|---|---|---|---|---|
@@ -299,7 +323,9 @@ Zero read noise, each kernel alpha: LR's best over its iteration counts, LR's la
 
 **The paper's claim that LR wins beyond ~800 RMS.** Under this protocol, at 800 RMS
 decoupling errs by {fmt(mae['decoupled'][at800])} and LR by {fmt(mae['lr'][at800])}; LR's MAE meets
-decoupling's at {'%.0f RMS' % crossover if np.isfinite(crossover) else 'no read noise up to %d RMS' % READ_NOISE[-1]}.
+decoupling's at \
+{f'{crossover:.0f} RMS' if np.isfinite(crossover)
+ else f'no read noise up to {READ_NOISE[-1]:d} RMS'}.
 So the claim does not hold here. Even with the paper's own numbers (decoupled slope 0.05,
 LR flat at ~134) the lines would meet near 134 / 0.05 = 2700 RMS, not 800; what the paper's
 800 rests on is not stated.
@@ -310,7 +336,8 @@ coupled maximum 3000 -> {100 * fits['coupled_max']:.3f} %; decoupled slope 0.05 
 {100 * fits['decoupled_slope']:.3f} %; LR MAE 133.8 (the donlon2018 frame, {LR_ITER} iterations,
 constant kernel of alpha) -> {100 * fits['lr_mae_low']:.3f} % or {100 * fits['lr_mae_high']:.3f} %
 (LR's MAE depends on the kernel: {mae['lr'][0]:.1f} with the rule's {100 * notes['alpha'][0]:.2f} %,
-{oracle[0]['lr'][0]:.1f} with the oracle's {100 * oracle[0]['lr'][1]:.2g} %; with a constant law and its exact
+{oracle[0]['lr'][0]:.1f} with the oracle's \
+{100 * oracle[0]['lr'][1]:.2g} %; with a constant law and its exact
 kernel LR's MAE is only a few e- (2.6 at 1 %), so the paper's 133.8 is not LR's convergence
 alone). They disagree (the donlon2018 law ranges 0.72-1.45 %, and its
 frame-weighted mean is {notes['alpha'][0] * 100:.2f} %), so no single constant coupling

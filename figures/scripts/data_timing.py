@@ -23,7 +23,8 @@ from ipc_taichi.datasets import uniform_frame
 
 SIZES = (512, 2048)
 REPEATS = 3
-PAPER = {512: "GPU (GTX 960M) ~2 s, under 10 s with I/O; serial Python ~30 min; GNU parallel ~8 min",
+PAPER = {512: "GPU (GTX 960M) ~2 s, under 10 s with I/O; serial Python ~30 min; "
+              "GNU parallel ~8 min",
          2048: "~6 min in all, > 80 % of it writing a CSV file"}
 
 
@@ -41,7 +42,7 @@ def main():
     for n in SIZES:
         frame = ipc_taichi.couple(uniform_frame(n, seed=2018))
         ipc_taichi.decouple(frame)  # compiles the kernels
-        seconds[n] = best_time(lambda: ipc_taichi.decouple(frame))
+        seconds[n] = best_time(lambda frame=frame: ipc_taichi.decouple(frame))
     result = ipc_taichi.decouple(frame)
     rt = ipc_taichi.runtime.current()
     with tempfile.TemporaryDirectory() as tmp:
@@ -61,7 +62,8 @@ def main():
 
 Data: `data/70_timing.npz` (`figures/scripts/data_timing.py`). `ipc_taichi.decouple`,
 law `donlon2018`, 4 nearest neighbours, the paper's stopping rule, precision
-`{rt.precision}`, Taichi arch `{rt.arch}` on a machine with {os.cpu_count()} CPU cores (shared; timings vary with its load);
+`{rt.precision}`, Taichi arch `{rt.arch}` on a machine with \
+{os.cpu_count()} CPU cores (shared; timings vary with its load);
 the best of {REPEATS} warm runs, after a first run that compiles the kernels.
 
 | frame | paper | ours: decouple |

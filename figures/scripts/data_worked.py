@@ -54,7 +54,8 @@ Coupled window [23:27, 23:27]:
 
 {window}
 
-| iteration | paper: peak | ours: peak | paper: max abs error in the frame | ours: max abs error in the frame |
+| iteration | paper: peak | ours: peak | \
+paper: max abs error in the frame | ours: max abs error in the frame |
 |---|---|---|---|---|
 {table}
 
@@ -65,8 +66,10 @@ after {info.iterations} iterations (the authors' code: 4).
 
 Slips in the paper's text, for the record: its sentences are about the error *at the
 peak* pixel (10000). It says one iteration leaves "0.1 %" there; the worked example gives
-{100 * (truth.max() - peak[1]) / truth.max():.3f} % ({truth.max() - peak[1]:.2f} of 10000). It says three leave "0.0004 %"; the peak's error
-is {100 * (truth.max() - peak[3]) / truth.max():.5f} % ({truth.max() - peak[3]:.3f} of 10000; the frame's largest error after three
+{100 * (truth.max() - peak[1]) / truth.max():.3f} % ({truth.max() - peak[1]:.2f} \
+of 10000). It says three leave "0.0004 %"; the peak's error
+is {100 * (truth.max() - peak[3]) / truth.max():.5f} % \
+({truth.max() - peak[3]:.3f} of 10000; the frame's largest error after three
 iterations, {max_err[3]:.3f}, would be {100 * max_err[3] / truth.max():.5f} %).
 """)
 

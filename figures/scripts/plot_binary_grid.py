@@ -47,11 +47,13 @@ def style_xaxis(ax, separations):
 
 
 def draw(ax, seps, mean, err, **kw):
-    """Errorbars joined by lines up to 5 px; the isolated 20 px reference unjoined, beyond the break."""
+    """Errorbars joined by lines up to 5 px; the isolated 20 px reference unjoined, beyond the
+    break."""
     seps, mean, err = np.asarray(seps), np.asarray(mean), np.asarray(err)
     near = seps != WIDE
     dx = kw.pop("_dx", 0.0)
-    line = ax.errorbar(seps[near] + dx, mean[near], yerr=err[near], marker="o", ms=3, capsize=2, **kw)
+    line = ax.errorbar(seps[near] + dx, mean[near], yerr=err[near], marker="o", ms=3, capsize=2,
+                       **kw)
     if (~near).any():
         ax.errorbar([xpos(WIDE) + dx], mean[~near], yerr=err[~near], marker="o", ms=3, capsize=2,
                     ls="none", color=line[0].get_color())
@@ -66,7 +68,8 @@ def plot_brightness(data, name, path):
         for i, (label, pick) in enumerate(ROWS):
             ax = axes[i, j]
             for ratio in ratios:
-                sel = sorted((r for r in rows if r["ratio"] == ratio), key=lambda r: r["separation"])
+                sel = sorted((r for r in rows if r["ratio"] == ratio),
+                             key=lambda r: r["separation"])
                 mean = np.array([pick(r[fit])[0] for r in sel])
                 std = np.array([pick(r[fit])[1] for r in sel])
                 draw(ax, [r["separation"] for r in sel], mean, std,

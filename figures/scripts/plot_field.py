@@ -23,7 +23,8 @@ def main(name):
     ax.legend(fontsize=8)
     ax.set_title("donlon2018 law: a flat measures alpha(S, S), a hot pixel alpha(S, 0)")
     bx.plot(g, 100 * d["law_diag"], "C0-", label="a(S) (= donlon2018's alpha(S, S))")
-    bx.plot(g, 100 * d["law_diag_plus_slope"], "C2--", label="a(S) + S a'(S): the linearised prediction")
+    bx.plot(g, 100 * d["law_diag_plus_slope"], "C2--",
+            label="a(S) + S a'(S): the linearised prediction")
     bx.errorbar(s, 100 * d["source_alpha"], 100 * d["source_alpha_err"], fmt="o", color="C2", ms=4,
                 capsize=2, label="flat-field autocorrelation (simulated)")
     bx.set_xlabel("signal S of the flat [ke-]")

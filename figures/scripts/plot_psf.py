@@ -85,7 +85,8 @@ def psf_cross_section(d, o, plt):
         e = unit(d[f"{MODEL}_{lv}_coupled"], o)
         g, h = widths(d, f"{lv}_coupled")
         curves.append((COLORS[lv], 1.2,
-                       f"{lv} coupled, {fl[lv]:.3g} e-: {g:.3f} / {h:.3f} px (paper {PAPER[lv]:.3f})", e))
+                       f"{lv} coupled, {fl[lv]:.3g} e-: {g:.3f} / {h:.3f} px "
+                       f"(paper {PAPER[lv]:.3f})", e))
     for color, lw, label, e in curves:
         t, v = smooth(x, row(e))
         ax.plot(t, v, "-", color=color, lw=lw, label=label)
@@ -137,7 +138,8 @@ def psf_static8(d, o, plt):
     gt, ht = widths(d, "truth")
     g4, h4 = widths(d, "static8")
     gd, hd = widths(d, "static8_diag")
-    ax.plot(*smooth(x, row(truth)), "k-", lw=2, label=f"no IPC: {gt:.3f} / {ht:.3f} px (paper 2.080)")
+    ax.plot(*smooth(x, row(truth)), "k-", lw=2,
+            label=f"no IPC: {gt:.3f} / {ht:.3f} px (paper 2.080)")
     ax.plot(*smooth(x, row(static)), "C1--", lw=1.5,
             label=f"static $\\alpha$ = 8 %, 4 neighbours: {g4:.3f} / {h4:.3f} px "
                   f"(+{100 * (g4 / gt - 1):.1f} %)")

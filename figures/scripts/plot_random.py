@@ -16,9 +16,11 @@ DIFF = {"coupled": "coupled - true", "decoupled": "decoupled - true", "lr": "LR 
 PAPER_FIG = {"hist_coupled": "Fig. 3.2.2", "hist_decoupled": "Fig. 3.2.1", "hist_lr": "Fig. 3.2.3"}
 PAPER_MAX = {"coupled": "~3000", "decoupled": "~0.075", "lr": "~1000"}
 TUNING = {"coupled": "nothing tuned", "decoupled": "paper's stopping rule, nothing tuned",
-          "lr": "3x3 kernel, alpha = {alpha:.4f} % (signal-weighted mean over the measured frame),\n"
+          "lr": "3x3 kernel, alpha = {alpha:.4f} % "
+                "(signal-weighted mean over the measured frame),\n"
                 "{lr_iter} iterations; not tuned on the truth",
-          "wiener": "3x3 kernel, alpha = {alpha:.4f} % (as LR); balance from the frame and the read\n"
+          "wiener": "3x3 kernel, alpha = {alpha:.4f} % (as LR); "
+                    "balance from the frame and the read\n"
                     "noise (0, the inverse filter, here); not tuned on the truth"}
 
 
@@ -68,7 +70,8 @@ def mae_read_noise(d, plt):
                color="k", mec="k", mew=1, clip_on=False, ls="none")
     ax.plot([20, 100], [719, 719], "--", color="C0", lw=1, label="paper: coupled ~719 (bar at 0)")
     paper_rn = np.array([20.0, 50, 100])
-    ax.plot(paper_rn, 0.05 * paper_rn, "--", color="C1", lw=1, label="paper: decoupled 0 -> 5 (slope 0.05)")
+    ax.plot(paper_rn, 0.05 * paper_rn, "--", color="C1", lw=1,
+            label="paper: decoupled 0 -> 5 (slope 0.05)")
     ax.plot([20, 100], [133.9, 134.0], "--", color="C2", lw=1,
             label="paper: LR 133.8 -> 134.0 (bar at 0)")
     ax.axvline(800, color="0.5", lw=0.8, ls=":")
@@ -79,8 +82,10 @@ def mae_read_noise(d, plt):
     ax0.set_ylabel("mean |method - true| [e-]")
     ax.legend(fontsize=7.5, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     ax.set_title("Mean absolute error vs read noise (paper Figs. 3.2.4-3.2.6 in one panel)\n"
-                 "\"true\" carries the same read-noise instance as the coupled frame: the error is IPC\n"
-                 "removal plus what a method does to the noise. LR and Wiener: same kernel and edges,\n"
+                 "\"true\" carries the same read-noise instance as the coupled frame: "
+                 "the error is IPC\n"
+                 "removal plus what a method does to the noise. "
+                 "LR and Wiener: same kernel and edges,\n"
                  "tuned by rules that never see the truth", fontsize=9)
     return fig
 

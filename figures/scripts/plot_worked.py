@@ -35,9 +35,9 @@ def main(name):
         if k % 3 == 0:
             ax.set_ylabel("row y [px]")
     fig.colorbar(image, ax=axes, shrink=0.8, label="|estimate - truth| [e-] (white: exact)")
-    fig.suptitle("Worked example: decoupling the 2x2 star (numbers: e-; colour: |error| against the "
-                 "truth, one log scale for all panels)\nafter 0, 1, 2, 3 and 7 Jacobi iterations "
-                 "(paper section 2.3; nothing tuned)")
+    fig.suptitle("Worked example: decoupling the 2x2 star (numbers: e-; colour: |error| "
+                 "against the truth, one log scale for all panels)\nafter 0, 1, 2, 3 and 7 "
+                 "Jacobi iterations (paper section 2.3; nothing tuned)")
     savefig(fig, name)
 
 

@@ -57,14 +57,15 @@ def main():
         f"{100 * (1e4 - w['peak'][1]) / 1e4:.3f} % / {100 * (1e4 - w['peak'][3]) / 1e4:.5f} %",
         "slips in the paper's text: its own example gives ours (the frame's largest error after 3: "
         f"{100 * w['max_error'][3] / 1e4:.5f} %)")
-    add("paper's stopping rule on the example", "(authors' code: 4)", f"{int(w['stop_iteration'])} iterations",
-        "reproduced")
+    add("paper's stopping rule on the example", "(authors' code: 4)",
+        f"{int(w['stop_iteration'])} iterations", "reproduced")
 
     # --- random frame
     r = load_npz("30_random")
     cmax = float(np.abs(r["extremes_coupled"]).max())
     add("random frame: mean abs(coupled - true)", "~719", f"{r['mae_coupled'][0]:.0f}",
-        f"not reproduced; a constant law would need {100 * float(r['alpha_fit_coupled_mae']):.2f} %; "
+        "not reproduced; a constant law would need "
+        f"{100 * float(r['alpha_fit_coupled_mae']):.2f} %; "
         "an independent reproduction gives 535 (64x64): open")
     add("random frame: max abs(coupled - true)", "~3000", f"{cmax:.0f}",
         f"not reproduced (constant law: {100 * float(r['alpha_fit_coupled_max']):.2f} %): open")
@@ -78,14 +79,18 @@ def main():
     add("decoupled MAE per RMS read noise", "~0.05", f"{slope:.4f}",
         f"not reproduced (constant law: {100 * float(r['alpha_fit_decoupled_slope']):.2f} %): open")
     add("mean abs(LR - true)", "~134 (133.8)", f"{r['mae_lr'][0]:.1f}",
-        f"depends on LR's kernel: 133.8 needs alpha {100 * float(r['alpha_fit_lr_mae_low']):.2f} % or "
+        "depends on LR's kernel: 133.8 needs alpha "
+        f"{100 * float(r['alpha_fit_lr_mae_low']):.2f} % or "
         f"{100 * float(r['alpha_fit_lr_mae_high']):.2f} %; the paper gives none: open")
-    add("max abs(LR - true)", "~1000", f"{float(np.abs(r['extremes_lr']).max()):.0f}", "same order; open")
+    add("max abs(LR - true)", "~1000", f"{float(np.abs(r['extremes_lr']).max()):.0f}",
+        "same order; open")
     add("LR at zero read noise: 30 iterations / converged", "(not given)",
         f"{r['mae_lr'][0]:.2f} / {float(r['mae_lr_converged'][0]):.2f} "
-        f"({int(r['lr_converged_iter'][0])} iterations); Wiener (inverse filter) {r['mae_wiener'][0]:.2f}",
-        "LR is converged at 30 iterations (more make it slightly worse); the gap to Wiener is at the "
-        "frame's edges (inside: LR " + f"{float(r['mae_lr_converged_inner'][0]):.2f}, Wiener "
+        f"({int(r['lr_converged_iter'][0])} iterations); Wiener (inverse filter) "
+        f"{r['mae_wiener'][0]:.2f}",
+        "LR is converged at 30 iterations (more make it slightly worse); the gap to Wiener is "
+        "at the frame's edges (inside: LR "
+        + f"{float(r['mae_lr_converged_inner'][0]):.2f}, Wiener "
         f"{float(r['mae_wiener_inner'][0]):.2f})")
     add("LR vs Wiener, each tuned on the truth (same freedom: kernel alpha + iterations / balance)",
         "(not in the paper)",
@@ -97,7 +102,8 @@ def main():
     cross = float(r["crossover"])
     add("LR beats decoupling beyond ~800 RMS read noise", "~800 RMS",
         f"at 800 RMS: decoupled {r['mae_decoupled'][k800]:.1f}, LR {r['mae_lr'][k800]:.1f}; "
-        + (f"they meet at {cross:.0f} RMS" if np.isfinite(cross) else f"no crossing up to {rn[-1]:.0f} RMS"),
+        + (f"they meet at {cross:.0f} RMS" if np.isfinite(cross)
+           else f"no crossing up to {rn[-1]:.0f} RMS"),
         "not reproduced; the paper's own lines would meet near 2700 RMS")
     add("one alpha for the four random-frame numbers", "(implied)",
         ", ".join(f"{100 * float(r[f'alpha_fit_{k}']):.2f}" for k in
@@ -118,9 +124,11 @@ def main():
     add("FWHM of the optical PSF", "2.080 px", f"{g[k0]:.3f} px ({k0[0]}\"/px, {k0[1]}, {k0[2]})",
         "matched by that cell only: a Gaussian fitted to the samples (poppy's `measure_fwhm`, "
         "WebbPSF's too), not a half maximum (spline "
-        f"{cell('truth', est='spline'):.3f}, azimuthal profile {cell('truth', est='azimuthal'):.3f}); "
+        f"{cell('truth', est='spline'):.3f}, azimuthal profile "
+        f"{cell('truth', est='azimuthal'):.3f}); "
         "at the paper's implied 0.065\"/px: "
-        f"{cell('truth', '0.065'):.3f} (Gaussian fit) / {cell('truth', '0.065', est='spline'):.3f} (spline); "
+        f"{cell('truth', '0.065'):.3f} (Gaussian fit) / "
+        f"{cell('truth', '0.065', est='spline'):.3f} (spline); "
         "likely, not established: the paper does not name its estimator")
     add("FWHM in arcsec (abstract)", "2.080 px = 0.132\"; 2.186 px = 0.142\"",
         f"{cell('truth'):.3f} px x 0.063\"/px = {0.063 * cell('truth'):.3f}\"",
@@ -140,10 +148,11 @@ def main():
         + " % (cell of the 2.080 row)",
         f"not reproduced in any cell (the largest, dim, is {widest:.2f} %): open")
     add("FWHM, static alpha = 8 %", "2.249 px",
-        f"{cell('static8_diag'):.3f} with 0.75 % diagonals, {cell('static8'):.3f} with 4 neighbours "
-        "(cell of the 2.080 row)",
+        f"{cell('static8_diag'):.3f} with 0.75 % diagonals, {cell('static8'):.3f} with 4 "
+        "neighbours (cell of the 2.080 row)",
         "the diagonals (35 % of the charge out of the centre, as the paper says) bring it to "
-        f"{abs(cell('static8_diag') - 2.249):.3f} px; other cells match too: the kernel is not decided")
+        f"{abs(cell('static8_diag') - 2.249):.3f} px; "
+        "other cells match too: the kernel is not decided")
     add("FWHM broadening, static alpha = 8 %", "8.1 %",
         f"{100 * (cell('static8_diag') / tr - 1):.1f} % with diagonals, "
         f"{100 * (cell('static8') / tr - 1):.1f} % with 4 neighbours (cell of the 2.080 row)",
@@ -163,7 +172,8 @@ def main():
     t = load_npz("70_timing")
     sec = dict(zip(t["sizes"].tolist(), t["seconds"].tolist()))
     add("time to decouple 512x512", "~2 s (GTX 960M GPU); < 10 s with I/O; ~30 min serial Python",
-        f"{sec[512]:.2g} s ({int(t['cpus'])}-core CPU, shared)", "faster here on a CPU; different machines")
+        f"{sec[512]:.2g} s ({int(t['cpus'])}-core CPU, shared)",
+        "faster here on a CPU; different machines")
     add("time to decouple 2048x2048", "~6 min in all (> 80 % writing CSV)",
         f"{sec[2048]:.2g} s; FITS write + read {float(t['fits_round_trip_2048']):.2g} s",
         "faster here; different machines and file formats")
@@ -180,17 +190,22 @@ def main():
         b = brow("bright")
         fo = b["coupled_optical"]
         c82 = [brow(n, 0.125, 2.0)["coupled_optical"] for n in ("bright", "mid", "dim")]
+        worst_4to1 = max(abs(brow(n)["coupled_optical"]["flux_error_pct"][k][0])
+                         for n in ("bright", "mid", "dim") for k in (0, 1))
         add("IPC ignored, a dim star beside a bright one: flux error (section 4)",
             "\"a few percent ... or worse\"",
             "faint star of an 8:1 pair 2 px apart: " + " / ".join(
-                f"{c['flux_error_pct'][1][0]:+.1f}" for c in c82) + " % (bright / mid / dim primary)",
+                f"{c['flux_error_pct'][1][0]:+.1f}" for c in c82)
+            + " % (bright / mid / dim primary)",
             "reached by the grid's closest, most unequal pairs (IPC-free PSF, noise-free); "
-            "the abstract's 4:1 pair 3 px apart reaches at most " + f"{max(abs(brow(n)['coupled_optical']['flux_error_pct'][k][0]) for n in ('bright', 'mid', 'dim') for k in (0, 1)):.2f} %")
+            "the abstract's 4:1 pair 3 px apart reaches at most " + f"{worst_4to1:.2f} %")
         add("IPC ignored: separation error (section 4)", "\"tens of millipixels\"",
             "8:1 pair 2 px apart: " + " / ".join(
-                f"{c['separation_error_mpix'][0]:+.0f}" for c in c82) + " mpix (bright / mid / dim)",
+                f"{c['separation_error_mpix'][0]:+.0f}" for c in c82)
+            + " mpix (bright / mid / dim)",
             "reached by the same pairs (the 4:1 pair 3 px apart: " + " to ".join(
-                f"{brow(n)['coupled_optical']['separation_error_mpix'][0]:+.0f}" for n in ("bright", "dim"))
+                f"{brow(n)['coupled_optical']['separation_error_mpix'][0]:+.0f}"
+                for n in ("bright", "dim"))
             + " mpix)")
         add("blend, coupled frame, IPC-free PSF: flux error", "~1.5 %",
             f"{fo['flux_error_pct'][0][0]:+.2f} % (bright star)", "same size, smaller: open")
@@ -200,12 +215,14 @@ def main():
             fr = [x for x in json.loads(fpath.read_text())["rows"] if x["grouping"] == "grouped"]
             sh = [x["coupled"]["separation_error_mpix"][0] - x["truth"]["separation_error_mpix"][0]
                   for x in fr]
-            share = f"; the IPC share is {min(sh):+.0f} to {max(sh):+.0f} mpix under every fitter choice tried"
+            share = (f"; the IPC share is {min(sh):+.0f} to {max(sh):+.0f} mpix under every "
+                     "fitter choice tried")
         add("blend, coupled frame, IPC-free PSF: separation error", "~50 mpix",
             f"{fo['separation_error_mpix'][0]:+.1f} mpix", "not reproduced" + share + ": open")
         dec = max(abs(x["decoupled"]["flux_error_pct"][s][0]) for x in bg["rows"] if not x["noise"]
                   for s in (0, 1))
-        dsep = max(abs(x["decoupled"]["separation_error_mpix"][0]) for x in bg["rows"] if not x["noise"])
+        dsep = max(abs(x["decoupled"]["separation_error_mpix"][0]) for x in bg["rows"]
+                   if not x["noise"])
         add("decoupled frames: flux / separation error (section 4)",
             "hundredths or thousandths of a percent / micro-pixels",
             f"<= {dec:.1g} % / <= {1000 * dsep:.1g} micro-pixels",
@@ -221,8 +238,8 @@ def main():
             f"{brow('dim')['coupled']['flux_error_pct'][0][0]:+.2f} %, "
             f"{brow('dim')['coupled']['flux_error_pct'][1][0]:+.2f} %, "
             f"{brow('dim')['coupled']['separation_error_mpix'][0]:+.1f} mpix)",
-            "same direction, smaller: a bias of the abstract's kind, not its size (bright pair with "
-            "the IPC-free PSF: see the rows above): open")
+            "same direction, smaller: a bias of the abstract's kind, not its size (bright pair "
+            "with the IPC-free PSF: see the rows above): open")
 
     table = "\n".join(rows)
     write_results("05_summary", f"""
