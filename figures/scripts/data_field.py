@@ -91,7 +91,9 @@ total. Errors are standard errors.
 neighbour gains per electron of noise in a pixel is
 `dM_q/dS_p = alpha(S, S) + S [d1 alpha(S, S) - d2 alpha(S, S)]`. For a pair-symmetric law,
 which charge conservation needs and `donlon2018` is, the bracket vanishes: the flat sees
-alpha(S, S), the diagonal of the law, and nothing of alpha(S, N) for N != S. The form
+alpha(S, S), the diagonal of the law, and nothing of alpha(S, N) for N != S, to first
+order (the `|S - N|` term has a kink at S = N, and the noise straddles it: a correction
+of hundredths of a percentage point, growing as sqrt(S); docs/analysis.md). The form
 "alpha + S x slope" holds for a law of the sending pixel alone, a(S): then
 `d[a(S) S]/dS = a + S a'`; we simulate such a law too (last columns; a(S) = alpha(S, S) of
 `donlon2018`).
@@ -116,7 +118,9 @@ Control, constant alpha = {100 * CONSTANT:g} %: nearest-neighbour covariance ove
 of 2 alpha (1 = "twice alpha times the variance"; the exact value for the kernel is
 (1 - 4a) / ((1 - 4a)^2 + 4a^2) = \
 {(1 - 4 * CONSTANT) / ((1 - 4 * CONSTANT) ** 2 + 4 * CONSTANT ** 2):.3f}
-before read noise), and the alpha recovered:
+before read noise; "twice alpha times the variance" is a small-alpha rule: at alpha = 8 %
+the same ratio is {(1 - 4 * 0.08) / ((1 - 4 * 0.08) ** 2 + 4 * 0.08 ** 2):.2f}), and the alpha
+recovered:
 
 | level [e-] | covariance / (2 alpha variance) | recovered alpha [%] |
 |---|---|---|
