@@ -17,11 +17,11 @@ A file whose kind is not one of these is refused in one line.
 """
 
 import numpy as np
-from astropy.io import fits
 
 from ..errors import IPCInputError
 from ..geometry import Geometry
 from ..laws import constant
+from ..products.fitsfile import open_fits
 from ..products.missions import is_asdf
 
 __all__ = ["read_reference", "invert_kernel", "law_from_forward_kernel"]
@@ -72,10 +72,7 @@ def read_reference(path):
 
 
 def _jwst(path):
-    try:
-        hdul = fits.open(path, memmap=False)
-    except OSError as exc:
-        raise IPCInputError(f"{path}: cannot read as FITS ({exc})") from None
+    hdul = open_fits(path, memmap=False)
     with hdul:
         primary = hdul[0].header
         reftype = str(primary.get("REFTYPE", "")).strip().upper()
