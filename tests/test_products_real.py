@@ -399,7 +399,8 @@ def test_model_file_for_an_instrument_product(cli, tmp_path, rng):
     CouplingModel.resolve("constant:0.006").save(model, provenance={"test": True})
     truth = rng.uniform(0, 20000, (20, 22))
     src = tmp_path / "rate.fits"
-    sci = fits.ImageHDU(couple_reference(truth, law="constant:0.006"), name="SCI")
+    sci = fits.ImageHDU(couple_reference(truth, law="constant:0.006", edge="isolated"),
+                        name="SCI")
     sci.header["BUNIT"] = "electrons"
     fits.HDUList([fits.PrimaryHDU(header=_jwst_primary()), sci]).writeto(src)
     out = tmp_path / "out.fits"
@@ -407,8 +408,9 @@ def test_model_file_for_an_instrument_product(cli, tmp_path, rng):
     assert r.returncode == 2 and "--model" in r.stderr  # the file holds the edge too
     r = cli("decouple", src, out, "--model", model)
     assert r.returncode == 0, r.stderr
-    # a cut-out (no reference border): the model file's edge is the caller's choice
-    assert fits.getheader(out)["IPCEDGE"] == "zero"
+    # a cut-out (no reference border): the frame decides the edge, not the model file
+    # (a measured coupling says nothing of where a cut-out ends)
+    assert fits.getheader(out)["IPCEDGE"] == "isolated"
     assert np.abs(fits.getdata(out, "SCI") - truth).max() <= 2e-5 * truth.max()
 
 

@@ -139,7 +139,10 @@ def _product_options(args):
                    gain=args.gain, exptime=args.exptime, bunit=args.bunit, output_dtype=dtype,
                    pedestal=args.pedestal, coadds=args.coadds, saturation=args.saturation,
                    model_chosen=model_is_explicit(args),
-                   edge_chosen=args.edge is not None or args.model is not None)
+                   # a model file's edge rule is what a plain image gets; a detector
+                   # product's frame decides its own (a measured coupling says nothing
+                   # of where a cut-out ends); only --edge overrides that
+                   edge_chosen=args.edge is not None)
     if hasattr(args, "max_iter"):
         options.update(max_iter=args.max_iter, tol=args.tol, tile=args.tile)
     return ProductOptions.from_kwargs(**options)
