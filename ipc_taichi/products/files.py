@@ -30,13 +30,13 @@ def decouple_file(input_path, output_path, law=None, geometry=None, edge=None, m
     both is refused, as :func:`ipc_taichi.decouple` does; giving neither means
     the paper's law (refused on instrument products). Returns a small
     picklable summary ``{"iterations", "converged", "frames"}``."""
-    if model is not None and (law, geometry, edge) != (None, None, None):
-        raise ValueError("give either model= or law=/geometry=/edge=, not both")
-    if model is None and law is not None:
+    if model is not None:  # a model or its file; law/geometry/edge beside it are refused
+        model = CouplingModel.resolve(law, geometry, edge, model=model)
+    elif law is not None:
         model = CouplingModel.resolve(law, geometry, edge or "zero")
         if edge is None:
             options = ProductOptions.from_kwargs(options, edge_chosen=False)
-    elif model is None and (geometry, edge) != (None, None):
+    elif (geometry, edge) != (None, None):
         raise ValueError("decouple_file: geometry= and edge= need law= (or give model=)")
     res = process_product(input_path, output_path, "decouple", model=model, options=options,
                           **kwargs)
