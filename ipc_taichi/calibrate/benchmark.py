@@ -6,6 +6,8 @@ import time
 
 import numpy as np
 
+from ..coupling import couple
+
 __all__ = ["measure_calibrate"]
 
 
@@ -20,12 +22,7 @@ def _ramp(size, groups, seed=0, n_hot=4000, read_noise=12.0, alpha=0.006):
     charge = np.zeros((size, size))
     for g in range(groups):
         charge += rng.poisson(rate)
-        c = charge * (1 - 4 * alpha)
-        c[1:] += alpha * charge[:-1]
-        c[:-1] += alpha * charge[1:]
-        c[:, 1:] += alpha * charge[:, :-1]
-        c[:, :-1] += alpha * charge[:, 1:]
-        ramp[0, g] = c + rng.normal(0.0, read_noise, c.shape)
+        ramp[0, g] = couple(charge, law=alpha) + rng.normal(0.0, read_noise, charge.shape)
     return ramp
 
 
