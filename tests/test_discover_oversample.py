@@ -126,6 +126,27 @@ def test_shift_on_the_fine_grid_is_exact_for_spots_edges_and_stars():
     assert model.collected(star, n).sum() == pytest.approx(1e5, rel=1e-9)
 
 
+def test_pixel_totals_shifted_under_either_picture_of_their_light():
+    # pixel totals: "uniform" within each pixel is the fine-grid shift of the
+    # pixels spread evenly (exact for a spot or an edge), "smooth" the spline
+    hot = np.zeros((15, 15))
+    hot[7, 7] = 1000.0
+    hot[2:5, 9:13] = 300.0
+    shift = {"misregistration": {"shift_y_px": 0.0, "shift_x_px": 0.4}}
+    uniform = DetectorModel("constant:0.0", 0.0, False, shift, within_pixel="uniform")
+    np.testing.assert_allclose(uniform.collected(hot), uniform.collected(_fine(hot, 5), 5),
+                               atol=1e-9)
+    np.testing.assert_allclose(uniform.collected(hot)[7, 6:10], [0, 600.0, 400.0, 0], atol=1e-9)
+    smooth = DetectorModel("constant:0.0", 0.0, False, shift).collected(hot)
+    assert smooth[7, 7] > 700.0  # the spline keeps more of the spot where it was
+    # an oversampled SCENE says where its light lies: the picture is ignored
+    np.testing.assert_array_equal(uniform.collected(_fine(hot, 5), 5),
+                                  DetectorModel("constant:0.0", 0.0, False, shift)
+                                  .collected(_fine(hot, 5), 5))
+    with pytest.raises(ValueError, match="within_pixel 'point'; known: smooth, uniform"):
+        DetectorModel("constant:0.0", 0.0, False, within_pixel="point")
+
+
 def test_diffusion_on_the_fine_grid_for_uniform_and_point_light():
     n, sigma = 5, 0.22
     model = DetectorModel("constant:0.0", 0.0, False, {"charge_diffusion": {"sigma_px": sigma}})

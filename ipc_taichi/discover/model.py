@@ -72,7 +72,7 @@ from .effects import (
 )
 from .sampling import block_sum, boundary_arrivals, isolated_points, shift_fine
 
-__all__ = ["DetectorModel", "CHAIN_ORDER", "SUBPIXEL_EFFECTS", "is_constant_law"]
+__all__ = ["DetectorModel", "CHAIN_ORDER", "SUBPIXEL_EFFECTS", "WITHIN_PIXEL", "is_constant_law"]
 
 CHAIN_ORDER = ("misregistration", "reciprocity_failure", "charge_diffusion", "dark_current",
                "brighter_fatter", "flat_field", "shot_noise", "ipc", "classical_nonlinearity",
@@ -81,6 +81,14 @@ CHAIN_ORDER = ("misregistration", "reciprocity_failure", "charge_diffusion", "da
 # the effects that move charge by a fraction of a pixel: they use a sub-pixel
 # SCENE when there is one (every other stage works on the pixels' totals)
 SUBPIXEL_EFFECTS = frozenset({"misregistration", "charge_diffusion", "brighter_fatter"})
+
+# How a pixel-total SCENE's light is taken to lie within each pixel, where
+# the operators need it (``within_pixel``): "smooth" across pixels (sources
+# imaged through optics; the spline shift), or "uniform" within each pixel
+# (single-pixel spots, sharp edges; the linear shift, exact for them). The
+# diffusion and brighter-fatter of pixel totals take the light as uniform in
+# both; an OVERSAMP SCENE says where the light lies and ignores this.
+WITHIN_PIXEL = ("smooth", "uniform")
 
 
 def is_constant_law(law):
@@ -115,6 +123,11 @@ class DetectorModel:
         Whether the measured frame has Poisson noise of the collected charge.
     effects : dict
         ``{effect name: {parameter: value}}`` of the effects switched on.
+    edge : str
+        The coupling's frame-edge rule.
+    within_pixel : str
+        How a pixel-total SCENE's light lies within each pixel for the shift
+        (:data:`WITHIN_PIXEL`): ``"smooth"`` (the default) or ``"uniform"``.
     """
 
     law: object
@@ -122,9 +135,13 @@ class DetectorModel:
     shot_noise: bool = True
     effects: dict = field(default_factory=dict)
     edge: str = "zero"
+    within_pixel: str = "smooth"
 
     def __post_init__(self):
         object.__setattr__(self, "law", get_law(self.law))
+        if self.within_pixel not in WITHIN_PIXEL:
+            raise ValueError(f"within_pixel {self.within_pixel!r}; known: "
+                             f"{', '.join(WITHIN_PIXEL)}")
         unknown = set(self.effects) - set(EFFECTS)
         if unknown:
             raise ValueError(f"unknown effect(s) {sorted(unknown)}; known: {', '.join(EFFECTS)}")
@@ -214,7 +231,7 @@ class DetectorModel:
         c = np.asarray(scene, dtype=np.float64)
         if "misregistration" in self.effects:
             p = self.effects["misregistration"]
-            if n > 1:
+            if n > 1 or self.within_pixel == "uniform":  # exact for light uniform in a cell
                 c = shift_fine(c, n * p["shift_y_px"], n * p["shift_x_px"])
             else:  # the spline undershoots next to sharp features: no negative charge
                 c = np.clip(shift_scene(c, p["shift_y_px"], p["shift_x_px"]), 0.0, None)

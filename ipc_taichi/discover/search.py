@@ -49,7 +49,7 @@ loop.
 
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -76,6 +76,7 @@ from .fitting import (
     fit_candidate,
     full_evidence,
     is_noise_effect,
+    only_with_smooth_light,
     params_report,
     partners,
     prune,
@@ -95,6 +96,8 @@ COMPLETE_SIGMAS = 3.0  # complete: final gap within this many floor scatters of 
 FLOOR_SIMULATIONS = 24
 MAX_STEPS = 4
 ALTERNATIVE_RATIO = 0.5
+FRAGILE = ("needed only while the pixel-total SCENE's light is taken as smooth across pixels "
+           "(the spline shift): it absorbs the error of that picture, not a detector effect")
 
 
 @dataclass
@@ -253,12 +256,23 @@ def discover(data, seed=0, threshold=EVIDENCE_THRESHOLD, max_steps=MAX_STEPS,
         kept, dropped = prune(frames, refit.model, threshold, keep=(best,))
         if dropped:
             refit = refit_all(frames, kept)
+        # with pixel-total scenes, what only the smooth picture of their light needs
+        fragile = only_with_smooth_light(frames, refit.model, threshold)
+        refusal = None
+        if best in {name for name, _, _ in fragile}:
+            refusal = (FRAGILE, f"is {FRAGILE}")
+        elif fragile:
+            smooth = refit.model.effects
+            fragile = [(name, dict(smooth[name]), worth) for name, _, worth in fragile]
+            refit = refit_all(frames, replace(refit.model, effects={
+                e: p for e, p in smooth.items() if e not in {name for name, _, _ in fragile}}))
         new_parts = frames.predict(refit.model)
         gap_after = gap(frames.residuals(refit.model, new_parts)[0])
         excess = current_gap - floor
         fraction = (current_gap - gap_after) / excess if excess > 0 else None
-        refusal = None
-        if above_floor > 3.0 and (fraction is None or fraction < MIN_EXPLAINED_FRACTION):
+        if refusal:
+            pass
+        elif above_floor > 3.0 and (fraction is None or fraction < MIN_EXPLAINED_FRACTION):
             refusal = (f"it would remove only {100 * (fraction or 0.0):.1f} % of the excess",
                        f"removes only {100 * (fraction or 0.0):.1f} % of the gap's excess over "
                        f"the floor (needs {100 * MIN_EXPLAINED_FRACTION:g} %): a symptom of "
@@ -291,6 +305,15 @@ def discover(data, seed=0, threshold=EVIDENCE_THRESHOLD, max_steps=MAX_STEPS,
                                      f"keeping {name} was worth delta BIC {worth:.1f} "
                                      f"(threshold {threshold:g}): {best} does its work"})
             say(f"dropped {name}: keeping it was worth delta BIC {worth:.1f}")
+        for name, values, worth in fragile:
+            pruned.append({"effect": name, "after_step": len(steps) + 1, "replaced_by": best,
+                           "params_before": values,
+                           "evidence": round(worth, 2),
+                           "reason": f"{FRAGILE}: with the light uniform within each pixel, "
+                                     f"keeping it was worth delta BIC {worth:.1f} (threshold "
+                                     f"{threshold:g})"})
+            rejected[:] = [(m, w) for m, w in rejected if m != name] + [(name, FRAGILE)]
+            say(f"dropped {name}: {FRAGILE}")
         params, errors = params_report(final_fit, best, lab.readnoise)
         steps.append({"effect": best, "params": params, "uncertainties": errors,
                       "gap_before": current_gap, "gap_after": gap_after,
@@ -309,6 +332,7 @@ def discover(data, seed=0, threshold=EVIDENCE_THRESHOLD, max_steps=MAX_STEPS,
         say(f"added {best}: delta BIC {evidence:.1f}, gap {current_gap:.4f} -> {gap_after:.4f}"
             + (f" ({100 * fraction:.0f} % of the excess)" if fraction is not None else ""))
         current_gap = gap_after
+        rejected[:] = [(m, w) for m, w in rejected if m != best]  # named now
     floor, floor_sigma, floor_bins = frames.floor(model, rng, floor_simulations, parts)
     final = _diagnostics(frames, model, probes, masks, parts)
     final["floor_chi2_vs_signal"] = floor_bins
