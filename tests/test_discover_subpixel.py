@@ -109,6 +109,20 @@ def test_silicon_brighter_fatter_and_diffusion_with_sub_pixel_scene(tmp_path):
     _closed(report)
 
 
+@pytest.mark.slow
+def test_silicon_brighter_fatter_and_diffusion_with_pixel_totals(tmp_path):
+    # the same physics in pixel totals: a brighter-fatter fitted there absorbs
+    # the star and spot centres (22 % at 50 ke-, ten times the truth), so it
+    # is not named, and the verdict says what would let it be judged
+    report = _run(tmp_path, seed=23, n=64, hot="mixed", levels=(15000.0, 40000.0),
+                  silicon={"strength": 1.0, "diffusion_factor": 0.5, "nrecalc": 100000})
+    assert report["missing_effects"] == ["charge_diffusion"]
+    assert report["complete"] is False
+    bf = [u for u in report["unexplained"] if u.startswith("not named brighter_fatter")]
+    assert len(bf) == 1 and "physical range" in bf[0] and "OVERSAMP would let" in bf[0]
+    _not_below_floor(report)
+
+
 def test_everything_displaced_with_sub_pixel_scene(tmp_path):
     # stars, patches, background and single-pixel spots (top-hat and point)
     # all 0.4 px to the right of their SCENE: the shift on the fine grid is

@@ -352,8 +352,15 @@ def describe_unexplained(d, rejected=(), effects=(), pixel_totals=None, n_pairs=
             if part["n"] > 5 and np.isfinite(part["z"]) and abs(part["z"]) > UNEXPLAINED_Z:
                 out.append(f"{kind.replace('_', ' ')}: {where} {part['mean']:+.2f} sigma on "
                            f"average ({part['n']} pixels, chi-square {part['chi2']:.2f})")
+    totals = pixel_totals is None or bool(pixel_totals)
     for name, why in rejected:
-        out.append(f"not named {name}: {why}")
+        # an effect that moves charge by a fraction of a pixel, fitted from pixel
+        # totals, may be absorbing where the light lies: say what would tell
+        hint = ("; its fit from pixel-total SCENEs may absorb how the light lies within "
+                "each pixel (it moves charge by a fraction of a pixel): a SCENE with "
+                "OVERSAMP would let it be judged" if totals and name in SUBPIXEL_LIMITS
+                and "pixel-total" not in why else "")
+        out.append(f"not named {name}: {why}{hint}")
     if not out:
         out.append("an excess spread over the frame without a localised pattern "
                    "(no signal range, probe type or direction stands out at "
