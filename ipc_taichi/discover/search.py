@@ -258,20 +258,19 @@ def discover(data, seed=0, threshold=EVIDENCE_THRESHOLD, max_steps=MAX_STEPS,
             refit = refit_all(frames, kept)
         # with pixel-total scenes, what only the smooth picture of their light needs
         fragile = only_with_smooth_light(frames, refit.model, threshold)
-        refusal = None
-        if best in {name for name, _, _ in fragile}:
-            refusal = (FRAGILE, f"is {FRAGILE}")
-        elif fragile:
+        gone = {name for name, _, _ in fragile}
+        if fragile and best not in gone:
             smooth = refit.model.effects
             fragile = [(name, dict(smooth[name]), worth) for name, _, worth in fragile]
             refit = refit_all(frames, replace(refit.model, effects={
-                e: p for e, p in smooth.items() if e not in {name for name, _, _ in fragile}}))
+                e: p for e, p in smooth.items() if e not in gone}))
         new_parts = frames.predict(refit.model)
         gap_after = gap(frames.residuals(refit.model, new_parts)[0])
         excess = current_gap - floor
         fraction = (current_gap - gap_after) / excess if excess > 0 else None
-        if refusal:
-            pass
+        refusal = None
+        if best in gone:
+            refusal = (FRAGILE, f"is {FRAGILE}")
         elif above_floor > 3.0 and (fraction is None or fraction < MIN_EXPLAINED_FRACTION):
             refusal = (f"it would remove only {100 * (fraction or 0.0):.1f} % of the excess",
                        f"removes only {100 * (fraction or 0.0):.1f} % of the gap's excess over "
