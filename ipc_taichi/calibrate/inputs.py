@@ -1,12 +1,47 @@
 """Calibration inputs: darks, ramps and flats read as charge [e-] with their masks.
 
 The product conventions are those of :mod:`ipc_taichi.products` (the same
-science-HDU choice, BUNIT and gain rules, DQ bits, reference border as
-``decouple``); this module only arranges the result for measuring:
-every input becomes ``(nints, nframes, ny, nx)`` float64 electrons and a
-boolean mask of the same shape (DQ bits, NaN, the reference border).
-A 2-D frame is one integration of one frame; a 3-D stack is one integration
-(a ramp's groups, or frames at one level); a 4-D ramp is as written.
+science-HDU choice, BUNIT parsing, gain reader, DQ bits, reference border and
+bias-product refusal as ``decouple``); this module arranges the result for
+measuring: every input becomes ``(nints, nframes, ny, nx)`` float64
+electrons and a boolean mask of the same shape (DQ bits, NaN, the reference
+border), and says in :attr:`ChargeFrames.meta` what the file is and how its
+numbers became electrons.
+
+**Layout** (``meta["layout"]`` in {"ramp", "frames"}, with
+``meta["layout_reason"]``, one sentence):
+
+- a 4-D science array is ramps, ``(nints, ngroups, ny, nx)``;
+- a 2-D array is one frame;
+- a 3-D cube is one ramp when its reads rise, else a stack of frames at one
+  level. The test (:func:`cube_rises`): per step ``k -> k + 1`` the pixel
+  differences ``D_k`` (pixels unmasked in both), their median ``s_k``, their
+  noise ``sigma_k`` (1.4826 x the median absolute deviation of the
+  differences of horizontal neighbours in ``D_k``, over sqrt(2): the
+  illumination pattern and its gradients drop out) and the error of the
+  median ``e_k = 1.2533 sigma_k / sqrt(n_k)``. The cube is a ramp when no
+  step falls (every ``s_k > -5 e_k``) and the whole rise ``sum_k s_k``
+  exceeds ``5 x median_k sigma_k``: the reads gain much more charge than the
+  noise of one read difference. Frames at one level (independent exposures)
+  change by lamp drift only, well inside that noise (``sqrt(2 S)`` at level
+  ``S``), or fall. A dark's reads gain little charge and are "frames" by this
+  test unless the JWST keywords confirm a ramp (``NGROUPS`` equal to the
+  number of reads): for hot pixels the difference does not matter.
+
+**Units and gain** (:func:`charge_units`): ``bunit`` overrides BUNIT (as
+``decouple --bunit``); BUNIT present: as for ``decouple`` (DN need a gain,
+given or the GAIN keyword; rates are refused: calibrate needs accumulated
+charge); BUNIT absent: DN when a gain is given or the file has a GAIN
+keyword, electrons otherwise. A gain given for data in electrons is unused.
+Each case is said in ``meta["units_note"]``; never silent.
+
+**Refusals** (:class:`~ipc_taichi.errors.IPCInputError`, one line naming the
+file and HDU): bias products (:func:`ipc_taichi.products.missions.check_not_bias`,
+the same refusal as ``decouple``), other JWST reference files but darks
+(``REFTYPE``), rates, and files in which no pixel has a usable read (all
+saturated: said). A raw integer 4-D ramp (``_uncal``), which ``decouple``
+refuses for the bias in it, is accepted: the first read of each integration
+is subtracted, so the data are the charge collected since the first read.
 """
 
 from dataclasses import dataclass, field
@@ -18,19 +53,45 @@ from ..fitsio import parse_hdu
 from ..products import conventions as cv
 from ..products import missions
 from ..products.fits import science_region_of
-from ..products.fitsfile import flag_hdus, keyword, open_fits, read_array, science_indices, shape_of
+from ..products.fitsfile import (
+    flag_hdus,
+    hdu_label,
+    keyword,
+    open_fits,
+    read_array,
+    science_indices,
+    shape_of,
+)
 from ..products.gain import read_gain
 
-__all__ = ["ChargeFrames", "read_frames", "DEFAULT_DQ_BITS"]
+__all__ = ["ChargeFrames", "read_frames", "DEFAULT_DQ_BITS", "ROLES", "charge_units",
+           "cube_rises", "RISE_SIGMAS"]
 
 DEFAULT_DQ_BITS = "DO_NOT_USE,SATURATED,JUMP_DET,DEAD"
 """DQ bits whose pixels are left out of every measurement (HOT and WARM are
 not among them: hot pixels are what the darks are measured with)."""
 
+ROLES = (None, "dark", "flat")
+"""What an input is given as (None: not said)."""
+
+RISE_SIGMAS = 5.0
+"""The ramp test's margin (see :func:`cube_rises`)."""
+
+_ACCEPTED_REFTYPES = ("DARK",)
+_SAMPLE_PIXELS = 200_000
+
 
 @dataclass
 class ChargeFrames:
-    """Charge and mask of one input file."""
+    """Charge and mask of one input file.
+
+    ``meta`` keys: ``layout`` ("ramp" or "frames"), ``layout_reason`` (one
+    sentence), ``nints``, ``ngroups`` (None for frames), ``nframes`` (reads or
+    frames per integration), ``units_note`` (one sentence), ``gain`` (e-/DN
+    used, the median of a gain image; None for electrons), ``gain_source``
+    ("given", "GAIN keyword" or None), ``saturation`` (e-, or None),
+    ``first_read_subtracted`` (bool), ``role``.
+    """
 
     path: str
     label: str
@@ -49,7 +110,8 @@ def _as4d(array):
     return a.reshape((1,) * (4 - a.ndim) + a.shape)
 
 
-def read_frames(path, hdu=None, gain=None, dq_bits=DEFAULT_DQ_BITS, refpix=None, bunit=None):
+def read_frames(path, hdu=None, gain=None, dq_bits=DEFAULT_DQ_BITS, refpix=None, bunit=None, *,
+                role=None):
     """Read a dark, ramp or flat product into :class:`ChargeFrames`.
 
     Parameters
@@ -59,47 +121,198 @@ def read_frames(path, hdu=None, gain=None, dq_bits=DEFAULT_DQ_BITS, refpix=None,
     hdu : int, str or None
         Science HDU (FITS; default SCI, else the first image HDU).
     gain : float, str or None
-        e-/DN for data in DN (default: the file's GAIN keyword).
+        e-/DN (a number or a gain image file). Without BUNIT, a gain given
+        (or a GAIN keyword) makes the data DN; see :func:`charge_units`.
     dq_bits : str or int
         See :data:`DEFAULT_DQ_BITS`.
     refpix : int or None
         Reference border (default: the product's, as for ``decouple``).
     bunit : str or None
-        Override the file's units.
+        Override the file's units (``DN``, ``electron``; rates are refused).
+    role : {None, "dark", "flat"}
+        What the file is given as (named in errors).
+
+    Returns
+    -------
+    ChargeFrames
+        ``data`` (nints, nframes, ny, nx) float64 e- (NaN where masked),
+        ``mask`` of the same shape, ``meta`` (see :class:`ChargeFrames`).
     """
+    if role not in ROLES:
+        raise IPCInputError(f"{path}: role {role!r}: expected 'dark' or 'flat'")
     if missions.is_asdf(path):
-        return _read_asdf(path, gain, dq_bits, refpix, bunit)
-    return _read_fits(path, hdu, gain, dq_bits, refpix, bunit)
+        frames, ndim, keys = _read_asdf(path, gain, dq_bits, refpix, bunit)
+        saturated = (None, "")
+    else:
+        frames, ndim, keys, saturated = _read_fits(path, hdu, gain, dq_bits, refpix, bunit)
+    frames.meta["role"] = role
+    frames.meta.update(_layout(frames, ndim, keys))
+    _check_usable(frames, saturated, role)
+    return frames
+
+
+# ---- units and gain ------------------------------------------------------------------
+
+def _gain_text(g):
+    g = np.asarray(g, dtype=np.float64)
+    if g.ndim == 0:
+        return f"{float(g):g} e-/DN"
+    return f"a gain image (median {float(np.nanmedian(g)):g} e-/DN)"
+
+
+def charge_units(bunit, bunit_keyword, gain, gain_keyword, shape2d, label, source="BUNIT"):
+    """Electrons per data unit, and the sentence that says how.
+
+    Parameters
+    ----------
+    bunit : str or None
+        Units given by the caller (override).
+    bunit_keyword : str or None
+        The file's units (its BUNIT, or a schema's).
+    gain, gain_keyword : float, str, ndarray or None
+        e-/DN given by the caller, and the file's GAIN keyword.
+    shape2d : (int, int)
+        The frame's shape (for a gain image).
+    label : str
+        The file and HDU, for error messages.
+    source : str
+        Where ``bunit_keyword`` comes from, in the sentences.
+
+    Returns
+    -------
+    scale : float or ndarray
+        Electrons per data unit.
+    units_text : str
+        :func:`ipc_taichi.products.conventions.charge_scale`'s description.
+    info : dict
+        ``units_note`` (one sentence), ``gain`` (float: e-/DN, the median of
+        a gain image; None for electrons), ``gain_source`` ("given", "GAIN
+        keyword" or None).
+
+    Raises
+    ------
+    IPCInputError
+        Rates, flux units, unknown units, DN without a gain (one line naming
+        ``label``).
+    """
+    text = bunit if bunit is not None else bunit_keyword
+    said = "bunit" if bunit is not None else source
+    chosen = gain if gain is not None else gain_keyword
+    gain_source = None if chosen is None else ("given" if gain is not None else "GAIN keyword")
+    if text is not None and str(text).strip():
+        units = cv.parse_units(text, label, said)
+        head = f"{said} {str(text).strip()!r}"
+    elif chosen is not None:
+        units, head = cv.Units("dn", "DN (no BUNIT)"), f"no {source}: taken as DN"
+    else:
+        units, head = cv.Units("charge", ""), f"no {source} and no gain: taken as electrons"
+    if units.rate:
+        raise IPCInputError(f"{label}: a rate ({units.text}); calibrate needs darks, ramps "
+                            "or flats of accumulated charge (DN or electrons)")
+    if not units.needs_gain:
+        scale, units_text = cv.charge_scale(units, None, None, label)
+        note = head if head.startswith("no ") else f"{head}: electrons"
+        if gain is not None:
+            note += f"; the gain given ({_gain_text(read_gain(gain, shape2d))}) is unused"
+        return scale, units_text, {"units_note": note, "gain": None, "gain_source": None}
+    value = read_gain(chosen, shape2d)
+    scale, units_text = cv.charge_scale(units, value, None, label)
+    where = "given" if gain_source == "given" else "from the GAIN keyword"
+    note = (f"{head}, gain {_gain_text(value)} {where}" if head.startswith("no ")
+            else f"{head}: DN converted with gain {_gain_text(value)} {where}")
+    used = float(np.nanmedian(np.asarray(value, dtype=np.float64)))
+    return scale, units_text, {"units_note": note, "gain": used, "gain_source": gain_source}
+
+
+# ---- FITS ----------------------------------------------------------------------------
+
+def _raw_ramp_index(hdul, hdu):
+    """The index of the science HDU when it is an integer 4-D ramp, else None."""
+    names = [(h.name or "").upper() for h in hdul]
+    try:
+        if hdu is not None:
+            index = hdul.index_of(hdu)
+        elif "SCI" in names:
+            index = names.index("SCI")
+        else:
+            index = next(k for k, h in enumerate(hdul)
+                         if h.is_image and h.header.get("NAXIS", 0) > 0)
+    except (KeyError, IndexError, ValueError, StopIteration):
+        return None
+    h = hdul[index]
+    return index if h.is_image and h.header.get("NAXIS") == 4 and h.header["BITPIX"] > 0 \
+        else None
+
+
+def _science_hdu(path, hdul, hdu):
+    """The science HDU as ``decouple`` chooses it (its first), except that a
+    raw integer 4-D ramp (``_uncal``), refused there for its bias, is
+    accepted: calibrate subtracts the first read."""
+    try:
+        index, label = science_indices(path, hdul, hdu)[0]
+        return index, label, False
+    except IPCInputError:
+        index = _raw_ramp_index(hdul, hdu)
+        if index is None:
+            raise
+        return index, f"{path}[{hdu_label(hdul, index)}]", True
+
+
+def _check_reftype(primary, label):
+    """Bias products as ``decouple`` refuses them; then any other JWST
+    reference file but a dark (a kernel, a flat-field response, a gain map
+    hold no collected charge)."""
+    missions.check_not_bias(primary, label)
+    reftype = str(primary.get("REFTYPE", "")).strip().upper()
+    if reftype and reftype not in _ACCEPTED_REFTYPES:
+        hint = " (give it as the reference: --reference)" if reftype == "IPC" else ""
+        raise IPCInputError(f"{label}: a {reftype.lower()} reference file (REFTYPE = {reftype})"
+                            f", not a dark, ramp or flat exposure of collected charge{hint}")
 
 
 def _read_fits(path, hdu, gain, dq_bits, refpix, bunit):
     hdul = open_fits(path, memmap=False)
     with hdul:
-        index, label = science_indices(path, hdul, parse_hdu(hdu))[0]
+        index, label, raw = _science_hdu(path, hdul, parse_hdu(hdu))
+        _check_reftype(hdul[0].header, label)
         shape = shape_of(hdul[index].header)
         shape2d = shape[-2:]
-        units = cv.parse_units(bunit if bunit is not None else keyword(hdul, index, "BUNIT"),
-                               label)
-        if units.rate:
-            raise IPCInputError(f"{label}: a rate ({units.text}); calibrate needs darks, ramps "
-                                "or flats of accumulated charge (DN or electrons)")
-        gain_value = read_gain(gain if gain is not None else keyword(hdul, index, "GAIN"),
-                               shape2d)
-        scale, units_text = cv.charge_scale(units, gain_value, None, label)
+        scale, units_text, info = charge_units(
+            bunit, keyword(hdul, index, "BUNIT"), gain, keyword(hdul, index, "GAIN"), shape2d,
+            label)
         data = np.asarray(read_array(path, hdul, index), dtype=np.float64) * scale
         mission = missions.recognise(hdul[0].header, hdul[index].header)
         bits = _file_dq_bits(hdul, dq_bits, label)
         if bits is None:
             bits = cv.parse_dq_bits(dq_bits, mission.dq_flags) & ~cv.REFERENCE_PIXEL
+        saturated_bit = bits & (missions.dq_def(hdul) or mission.dq_flags).get("SATURATED", 0)
         flags = flag_hdus(hdul, index, shape, path)
         region, inside = science_region_of(path, hdul, index, flags, shape2d, refpix, mission,
                                            label)
         mask = np.zeros(shape, dtype=bool)
+        saturated = np.zeros(shape, dtype=bool)
         for k in flags:
-            mask |= (np.asarray(read_array(path, hdul, k)).astype(np.int64) & bits) != 0
+            f = np.asarray(read_array(path, hdul, k)).astype(np.int64)
+            mask |= (f & bits) != 0
+            saturated |= (f & saturated_bit) != 0
         saturate = keyword(hdul, index, "SATURATE")
-    return _finish(path, label, data, mask, region, inside, units_text,
-                   {"saturation": None if saturate is None else float(saturate) * np.max(scale)})
+        keys = {k: keyword(hdul, index, k) for k in ("NGROUPS", "NINTS", "READPATT")}
+        keys["hdu"] = hdu_label(hdul, index)
+    level = None if saturate is None else float(saturate) * float(np.max(scale))
+    said = ["DQ SATURATED"] if saturated.any() else []
+    if level is not None:
+        with np.errstate(invalid="ignore"):
+            above = data >= level
+        saturated |= above
+        said += [f">= SATURATE ({_e(level)} e-)"] if above.any() else []
+    if raw:  # bias in every read: keep the charge collected since the first read
+        mask |= saturated
+        data = data - data[:, :1]
+        mask = mask | mask[:, :1]
+        level = None
+    info.update(saturation=level, first_read_subtracted=raw)
+    frames = _finish(path, label, data, mask, region, inside, units_text, info)
+    return frames, len(shape), keys, (_as4d(saturated), " or ".join(said))
 
 
 def _file_dq_bits(hdul, dq_bits, label):
@@ -121,6 +334,8 @@ def _file_dq_bits(hdul, dq_bits, label):
     return bits & ~(2 ** 31)
 
 
+# ---- Roman ASDF ----------------------------------------------------------------------
+
 def _read_asdf(path, gain, dq_bits, refpix, bunit):
     try:
         import roman_datamodels.datamodels as rdm
@@ -134,8 +349,8 @@ def _read_asdf(path, gain, dq_bits, refpix, bunit):
             from None
     with dm:
         data = np.asarray(dm.data, dtype=np.float64)
-        units = cv.parse_units(bunit if bunit is not None else "DN", label)
-        scale, units_text = cv.charge_scale(units, gain, None, label)
+        scale, units_text, info = charge_units(bunit, "DN", gain, None, data.shape[-2:], label,
+                                               source="Roman schema")
         data = data * scale
         bits = cv.parse_dq_bits(dq_bits, missions.roman_mission().dq_flags) & ~cv.REFERENCE_PIXEL
         mask = np.zeros(data.shape, dtype=bool)
@@ -147,7 +362,9 @@ def _read_asdf(path, gain, dq_bits, refpix, bunit):
                                         f"data {data.shape}")
                 mask |= (f & bits) != 0
     region, inside = cv.science_region(data.shape[-2:], refpix, None)
-    return _finish(path, label, data, mask, region, inside, units_text, {})
+    info.update(saturation=None, first_read_subtracted=False)
+    frames = _finish(path, label, data, mask, region, inside, units_text, info)
+    return frames, data.ndim, {"hdu": "data"}
 
 
 def _finish(path, label, data, mask, region, inside, units_text, meta):
@@ -159,3 +376,125 @@ def _finish(path, label, data, mask, region, inside, units_text, meta):
     mask |= outside
     data = np.where(mask, np.nan, data)
     return ChargeFrames(path, label, _as4d(data), _as4d(mask), units_text, meta)
+
+
+# ---- layout --------------------------------------------------------------------------
+
+def _sample(cube):
+    """Rows of ``cube`` (n, ny, nx), every k-th, about :data:`_SAMPLE_PIXELS` per frame."""
+    ny, nx = cube.shape[-2:]
+    return cube[:, ::max(1, (ny * nx) // _SAMPLE_PIXELS)]
+
+
+def _e(x):
+    """Charge for a sentence: ``41000``, ``150``, ``0.497``."""
+    return f"{x:.0f}" if abs(x) >= 100 else f"{x:.3g}"
+
+
+def _level(frame):
+    values = frame[np.isfinite(frame)]
+    return float(np.median(values)) if values.size else float("nan")
+
+
+def cube_rises(cube):
+    """Whether the reads of a cube rise: the ramp test of this module.
+
+    Parameters
+    ----------
+    cube : ndarray, (n, ny, nx)
+        Charge [e-], NaN where masked.
+
+    Returns
+    -------
+    dict
+        ``rises`` (bool), ``first``, ``last`` (median charge of the first and
+        last frame, e-), ``rise`` (sum of the median steps, e-), ``noise``
+        (median pixel noise of one step, e-), ``falls`` (steps that fall by
+        more than :data:`RISE_SIGMAS` errors of their median).
+    """
+    cube = _sample(np.asarray(cube, dtype=np.float64))
+    steps, noises, falls = [], [], 0
+    for k in range(cube.shape[0] - 1):
+        step = cube[k + 1] - cube[k]
+        values = step[np.isfinite(step)]
+        neighbour = (step[:, 1:] - step[:, :-1]).ravel()
+        neighbour = neighbour[np.isfinite(neighbour)]
+        if values.size < 2 or neighbour.size < 2:
+            continue  # no pixel good in both reads: the step says nothing
+        s = float(np.median(values))
+        sigma = 1.4826 * float(np.median(np.abs(neighbour - np.median(neighbour)))) / np.sqrt(2)
+        steps.append(s)
+        noises.append(sigma)
+        falls += s < -RISE_SIGMAS * 1.2533 * sigma / np.sqrt(values.size)
+    rise = float(np.sum(steps)) if steps else 0.0
+    noise = float(np.median(noises)) if noises else float("nan")
+    rises = bool(steps) and falls == 0 and rise > RISE_SIGMAS * noise
+    return {"rises": rises, "first": _level(cube[0]), "last": _level(cube[-1]), "rise": rise,
+            "noise": noise, "falls": int(falls)}
+
+
+def _keyword_ramp(keys, n):
+    """``"; NGROUPS = n"`` when the JWST keywords say the ``n`` reads are groups."""
+    ngroups, nints = keys.get("NGROUPS"), keys.get("NINTS")
+    try:
+        match = int(ngroups) == n and (nints is None or int(nints) == 1)
+    except (TypeError, ValueError):
+        return ""
+    if not match:
+        return ""
+    patt = keys.get("READPATT")
+    return f"; NGROUPS = {n}" + (f", READPATT {str(patt).strip()}" if patt else "")
+
+
+def _layout(frames, ndim, keys):
+    """``layout``, ``layout_reason``, ``nints``, ``ngroups``, ``nframes``."""
+    nints, n = frames.data.shape[:2]
+    name = keys.get("hdu", "")
+    if ndim == 2:
+        return {"layout": "frames", "layout_reason": f"2-D {name}: one frame", "nints": 1,
+                "ngroups": None, "nframes": 1}
+    rise = cube_rises(frames.data[0])
+    change = f"{_e(rise['first'])} -> {_e(rise['last'])} e-"
+    if ndim == 4:
+        raw = ("; integers: a raw (_uncal) ramp, its first read subtracted"
+               if frames.meta.get("first_read_subtracted") else "")
+        reason = (f"4-D {name} ({nints} integrations x {n} groups; the mean of the first "
+                  f"rises {change}){raw}")
+        return {"layout": "ramp", "layout_reason": reason, "nints": nints, "ngroups": n,
+                "nframes": n}
+    confirmed = _keyword_ramp(keys, n)
+    if rise["rises"]:
+        reason = f"3-D cube of {n} reads whose mean rises {change} (a ramp{confirmed})"
+    elif confirmed:
+        reason = (f"3-D cube of {n} reads ({confirmed[2:]}): a ramp whose mean changes "
+                  f"{change}, within {RISE_SIGMAS:g} x its noise of {rise['noise']:.3g} e- "
+                  "per read difference")
+    else:
+        why = ("it falls between frames" if rise["falls"] else
+               f"a change within {RISE_SIGMAS:g} x the noise of a frame difference, "
+               f"{rise['noise']:.3g} e-")
+        return {"layout": "frames", "nints": 1, "ngroups": None, "nframes": n,
+                "layout_reason": f"3-D stack of {n} frames at one level (mean {change}: {why})"}
+    return {"layout": "ramp", "layout_reason": reason, "nints": 1, "ngroups": n, "nframes": n}
+
+
+# ---- refusals after reading ----------------------------------------------------------
+
+def _check_usable(frames, saturated, role):
+    """Refuse a file where no pixel has a usable read (two, in a ramp or a
+    stack: a difference, or a deviation free of the fixed pattern, needs
+    them), saying when saturation is why. ``saturated``: the pixels
+    saturated (DQ or SATURATE) or None, and the sentence saying by what."""
+    sat, by_what = saturated
+    mask = frames.mask
+    sat = np.zeros(mask.shape, dtype=bool) if sat is None else sat
+    need = min(2, mask.shape[1])
+    if ((~mask & ~sat).sum(axis=1) >= need).any():
+        return
+    what = f"{role} {frames.meta['layout']}" if role else frames.meta["layout"]
+    if ((~(mask & ~sat)).sum(axis=1) >= need).any():  # usable but for saturation
+        raise IPCInputError(f"{frames.label}: every read of this {what} is saturated "
+                            f"({by_what}): no pixel has {need} unsaturated read(s) to measure; "
+                            "lower the illumination or shorten the ramp")
+    raise IPCInputError(f"{frames.label}: every pixel of this {what} is masked (DQ bits, NaN "
+                        f"or the reference border): no pixel has {need} usable read(s)")
