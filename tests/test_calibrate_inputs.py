@@ -113,6 +113,8 @@ def test_2d_is_one_frame(tmp_path, rng):
     f = read_frames(_write(tmp_path / "one.fits", rng.normal(100, 3, (NY, NX))))
     assert f.data.shape == (1, 1, NY, NX) and f.meta["layout"] == "frames"
     assert f.meta["layout_reason"] == "2-D SCI: one frame" and f.meta["nframes"] == 1
+    g = read_frames(_write(tmp_path / "one3.fits", rng.normal(100, 3, (1, NY, NX))))
+    assert g.meta["layout"] == "frames" and g.meta["layout_reason"] == "3-D SCI: one frame"
 
 
 # ---- units and gain ------------------------------------------------------------------

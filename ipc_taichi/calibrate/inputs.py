@@ -78,7 +78,7 @@ RISE_SIGMAS = 5.0
 """The ramp test's margin (see :func:`cube_rises`)."""
 
 _ACCEPTED_REFTYPES = ("DARK",)
-_SAMPLE_PIXELS = 200_000
+_SAMPLE_PIXELS = 100_000
 
 
 @dataclass
@@ -368,13 +368,15 @@ def _read_asdf(path, gain, dq_bits, refpix, bunit):
 
 
 def _finish(path, label, data, mask, region, inside, units_text, meta):
-    mask = mask | ~np.isfinite(data)
+    """Mask NaN and the reference border; NaN where masked (in place: the
+    arrays are this module's own)."""
+    mask |= ~np.isfinite(data)
     outside = np.ones(data.shape[-2:], dtype=bool)
     outside[region] = False
     if inside is not None:
         outside[region] |= inside
     mask |= outside
-    data = np.where(mask, np.nan, data)
+    np.copyto(data, np.nan, where=mask)
     return ChargeFrames(path, label, _as4d(data), _as4d(mask), units_text, meta)
 
 
@@ -450,16 +452,17 @@ def _layout(frames, ndim, keys):
     """``layout``, ``layout_reason``, ``nints``, ``ngroups``, ``nframes``."""
     nints, n = frames.data.shape[:2]
     name = keys.get("hdu", "")
-    if ndim == 2:
-        return {"layout": "frames", "layout_reason": f"2-D {name}: one frame", "nints": 1,
+    if ndim == 2 or (ndim == 3 and n == 1):
+        return {"layout": "frames", "layout_reason": f"{ndim}-D {name}: one frame", "nints": 1,
                 "ngroups": None, "nframes": 1}
     rise = cube_rises(frames.data[0])
     change = f"{_e(rise['first'])} -> {_e(rise['last'])} e-"
     if ndim == 4:
         raw = ("; integers: a raw (_uncal) ramp, its first read subtracted"
                if frames.meta.get("first_read_subtracted") else "")
+        verb = "rises" if rise["rises"] else "changes"
         reason = (f"4-D {name} ({nints} integrations x {n} groups; the mean of the first "
-                  f"rises {change}){raw}")
+                  f"{verb} {change}){raw}")
         return {"layout": "ramp", "layout_reason": reason, "nints": nints, "ngroups": n,
                 "nframes": n}
     confirmed = _keyword_ramp(keys, n)
