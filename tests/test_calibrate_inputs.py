@@ -263,3 +263,17 @@ def test_everything_masked_is_said(tmp_path, rng):
         read_frames(path, role="dark")
     with pytest.raises(IPCInputError, match="role 'bias'"):
         read_frames(path, role="bias")
+
+
+def test_roman_ramp_read_and_said(tmp_path, rng):
+    import roman_datamodels.datamodels as rdm
+    model = rdm.RampModel.create_fake_data(shape=(4, NY, NX))
+    model.data = (_ramp(rng, 4, 1000.0) / 2.0).astype(np.float32)  # DN
+    model.pixeldq = np.zeros((NY, NX), dtype=np.uint32)
+    model.groupdq = np.zeros((4, NY, NX), dtype=np.uint8)
+    path = str(tmp_path / "ramp.asdf")
+    model.save(path)
+    f = read_frames(path, gain=2.0, refpix=0, role="flat")
+    assert f.meta["layout"] == "ramp" and f.meta["ngroups"] == 4
+    assert f.meta["units_note"] == "Roman schema 'DN': DN converted with gain 2 e-/DN given"
+    np.testing.assert_allclose(f.data[0], 2.0 * np.asarray(model.data, dtype=float))
