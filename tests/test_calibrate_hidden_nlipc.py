@@ -10,9 +10,11 @@ present, the brighter-fatter kernel's nearest terms within 30 %.
 
 Size: 256 x 256 pixels x 16 integrations x 12 groups to 50 ke-. A covariance
 of the last read has a noise of ``~Q / sqrt(ny nx nints) = 49 e-^2`` at
-``Q = 50 ke-``; the brighter-fatter covariance there is ``a(d) Q^2 = 1000``
-(x) and ``850 e-^2`` (y): 20 and 17 sigma (10 and 8.5 sigma even counting only
-half of it).
+``Q = 50 ke-`` (measured: 51 and 41 e-^2 at x and y); the brighter-fatter
+covariance there is ``a(d) Q^2 = 1000`` (x) and ``850 e-^2`` (y) to first order,
+760 and 653 e-^2 to all orders as seen through the IPC
+(``rampgen.brighter_fatter_covariance``): 15 and 13 sigma (10 and 8.5 sigma
+with the cruder estimate ``a Q^2 / 2``).
 """
 
 import json
@@ -30,7 +32,6 @@ LEVELS = (5000.0, 10000.0, 20000.0, 35000.0, 48000.0)
 CASES = [(law, bf) for law in ("rising", "falling") for bf in (False, True)]
 _SEEDS = {("rising", False): 11, ("rising", True): 23, ("falling", False): 37,
           ("falling", True): 41}
-
 
 _FILES = {}
 
