@@ -22,13 +22,22 @@ document, versioned, readable by eye and by any language::
       "edge": "zero" | "isolated",
       "units": "electron",
       "provenance": {...},        # free-form: inputs, gain, software version, date
-      "fit": {...}                # free-form: fit quality, uncertainties, what was assumed
+      "fit": {...},               # free-form: fit quality, uncertainties, what was assumed
+      # version 2: named sections of what calibrate measured beside the law (optional)
+      "law_band": {...},          # the law's 1-sigma band along (S, 0) and (S, S)
+      "brighter_fatter": {"kernel": [[...] x 5], "kernel_error": ..., "units": "1/electron"},
+      "classical_nonlinearity": {"beta": ..., "error": ..., "form": "M = Q - beta Q^2"},
+      "gain": {...}               # the gain given and the gain the flat ramps measured
     }
 
 The law is in electrons of collected charge (``units`` must say so): a model
 measured in DN is converted before it is written. ``geometry`` multiplies
 alpha exactly as :class:`ipc_taichi.geometry.Geometry` does. ``provenance``
-and ``fit`` are carried, never interpreted, by the readers.
+and ``fit`` are carried, never interpreted, by the readers. The sections
+(:data:`SECTIONS`) describe the detector beyond IPC for the forward
+simulators (``simulate-lab``, ``discover``'s starting model); the model
+itself, and so ``decouple``, is IPC only: it never reads them. Version 1
+files (no sections) are read unchanged.
 
 :meth:`CouplingModel.save` writes to a temporary file in the target folder
 and renames it into place, so a crash never leaves half a model.
@@ -46,10 +55,12 @@ from .geometry import Geometry
 from .laws import ParametricLaw, TabulatedLaw, check_convergence, get_law
 
 __all__ = ["CouplingModel", "EDGES", "DEFAULT_LAW", "DEFAULT_EDGE", "MODEL_FORMAT",
-           "MODEL_VERSION"]
+           "MODEL_VERSION", "SECTIONS"]
 
 MODEL_FORMAT = "ipc_taichi.coupling_model"
-MODEL_VERSION = 1
+MODEL_VERSION = 2
+SECTIONS = ("law_band", "brighter_fatter", "classical_nonlinearity", "gain")
+"""Named sections a model file may carry beside the law (version 2)."""
 _PARAMETRIC = ("amp_diff", "scale_diff", "amp_level", "scale_level", "floor")
 
 EDGES = ("zero", "isolated")
@@ -158,8 +169,13 @@ class CouplingModel:
 
     # ---- the model file --------------------------------------------------------------
 
-    def to_dict(self, provenance=None, fit=None):
-        """The model file's content (see the module docstring)."""
+    def to_dict(self, provenance=None, fit=None, sections=None):
+        """The model file's content (see the module docstring); ``sections``
+        maps names of :data:`SECTIONS` to JSON objects."""
+        unknown = sorted(set(sections or ()) - set(SECTIONS))
+        if unknown:
+            raise IPCInputError(f"unknown model-file section(s) {', '.join(unknown)} "
+                                f"(known: {', '.join(SECTIONS)})")
         law = self.law
         if isinstance(law, ParametricLaw):
             law_doc = {"kind": "parametric", "name": law.name,
@@ -178,6 +194,7 @@ class CouplingModel:
             "units": "electron",
             "provenance": dict(provenance or {}),
             "fit": dict(fit or {}),
+            **{name: value for name, value in (sections or {}).items() if value is not None},
         }
 
     @classmethod
@@ -240,15 +257,16 @@ class CouplingModel:
         model = cls.from_dict(doc, source=path)
         return (model, doc) if with_document else model
 
-    def save(self, path, provenance=None, fit=None, overwrite=False):
+    def save(self, path, provenance=None, fit=None, overwrite=False, sections=None):
         """Write the model (with ``provenance`` and ``fit`` dicts of JSON values;
-        NumPy scalars and arrays are converted, use None for "not measured") to
-        ``path`` atomically (temporary file in the same folder, then renamed).
+        NumPy scalars and arrays are converted, use None for "not measured"; and
+        the named ``sections`` of :data:`SECTIONS`) to ``path`` atomically
+        (temporary file in the same folder, then renamed).
 
         Raises
         ------
         IPCInputError
             ``path`` exists and ``overwrite`` is false, or cannot be written.
         """
-        return write_json(path, self.to_dict(provenance, fit), overwrite)
+        return write_json(path, self.to_dict(provenance, fit, sections), overwrite)
 

@@ -44,7 +44,7 @@ from scipy.optimize import least_squares
 from ..errors import IPCInputError
 
 __all__ = ["LAGS", "TERMS", "flat_covariances", "kernel_autocorrelation", "solve_kernel",
-           "measure_level", "growth_with_signal"]
+           "measure_level", "growth_with_signal", "weighted_slope"]
 
 LAGS = ((0, 0), (0, 1), (1, 0), (1, 1), (1, -1), (0, 2), (2, 0))
 """Lags ``(dy, dx)`` whose covariances are measured."""
@@ -256,11 +256,17 @@ def growth_with_signal(levels):
     for name in TERMS:
         v = np.array([r["terms"][name]["value"] for r in rows])
         e = np.array([r["terms"][name]["error"] for r in rows])
-        w = 1.0 / np.maximum(e, 1e-12) ** 2
-        A = np.stack([np.ones_like(s), s], axis=1)
-        covp = np.linalg.inv(A.T @ (A * w[:, None]))
-        coef = covp @ (A.T @ (w * v))
-        err = float(np.sqrt(covp[1, 1]))
-        out[name] = {"slope_per_10ke": float(coef[1]), "error": err,
-                     "significance": float(coef[1] / err) if err > 0 else float("nan")}
+        out[name] = weighted_slope(s, v, e)
     return out
+
+
+def weighted_slope(x, values, errors):
+    """Weighted straight-line fit: ``{"slope_per_10ke", "error", "significance"}``
+    (``x`` in units of 10 ke-)."""
+    w = 1.0 / np.maximum(np.asarray(errors, float), 1e-12) ** 2
+    A = np.stack([np.ones_like(x), x], axis=1)
+    covp = np.linalg.inv(A.T @ (A * w[:, None]))
+    coef = covp @ (A.T @ (w * np.asarray(values, float)))
+    err = float(np.sqrt(covp[1, 1]))
+    return {"slope_per_10ke": float(coef[1]), "error": err,
+            "significance": float(coef[1] / err) if err > 0 else float("nan")}

@@ -28,9 +28,17 @@ Procedure (all vectorised):
    is skipped.
 3. **Summarise** per direction (``x``: (0, +-1); ``y``: (+-1, 0);
    ``diagonal``: (+-1, +-1); ``second_x``: (0, +-2); ``second_y``: (+-2, 0))
-   in logarithmic signal bins: a sigma-clipped mean, its error from the
-   scatter (clipped standard deviation / sqrt(n)), and the two halves of each
-   direction (left/right, down/up) to show asymmetry.
+   in logarithmic signal bins. The unit of resampling is the hot pixel, not
+   the measurement: the groups and integrations of one pixel share its own
+   coupling (pixel-to-pixel IPC differences of several per cent) and most of
+   its noise, so they are averaged first; the bin's value is the
+   sigma-clipped mean over pixels and its error the clipped scatter over
+   pixels / sqrt(number of pixels) (a cluster error: counting every group as
+   independent made the errors of a ramp with a few hot pixels several times
+   too small, and chi^2 then chose wiggles). The two halves of each
+   direction (left/right, down/up) show asymmetry.
+4. **Folds** for held-out evidence (:func:`fold_of`): each hot pixel (by
+   position) belongs to one of ``k`` folds, the same in every integration.
 
 Images are ``image[y, x]``; the geometry convention is that of
 :mod:`ipc_taichi.geometry`.
@@ -42,7 +50,7 @@ from scipy import ndimage
 from ..errors import IPCInputError
 
 __all__ = ["DIRECTIONS", "find_hot_pixels", "measure_events", "summarise_events",
-           "read_noise_from_darks"]
+           "select_events", "fold_of", "nn_fraction", "read_noise_from_darks"]
 
 DIRECTIONS = {
     "x": ((0, 1), (0, -1)),
@@ -152,7 +160,8 @@ def measure_events(groups, positions, mask=None, background=None):
     dict of ndarray, one value per measurement (event x group, skipped ones
     dropped): ``signal`` (total excess [e-]), ``background`` [e-],
     ``fraction`` (shape (m, 25): the 5x5 box, row-major, offsets -2..2),
-    ``event`` (index into ``positions``), ``group``.
+    ``event`` (index into ``positions``), ``group``, ``pixel`` (``y * nx +
+    x``: the same id for the same pixel in every integration).
     """
     groups = np.asarray(groups, dtype=np.float64)
     if groups.ndim == 2:
@@ -162,7 +171,7 @@ def measure_events(groups, positions, mask=None, background=None):
     ny, nx = groups.shape[-2:]
     inside = (y >= 3) & (y < ny - 3) & (x >= 3) & (x < nx - 3)  # the ring must fit
     y, x = np.where(inside, y, 3), np.where(inside, x, 3)
-    out = {k: [] for k in ("signal", "background", "fraction", "event", "group")}
+    out = {k: [] for k in ("signal", "background", "fraction", "event", "group", "pixel")}
     for g, frame in enumerate(groups):
         if positions.shape[0] == 0:
             break
@@ -183,10 +192,11 @@ def measure_events(groups, positions, mask=None, background=None):
         out["fraction"].append(box[ok] / total[ok, None])
         out["event"].append(np.flatnonzero(ok))
         out["group"].append(np.full(int(ok.sum()), g))
+        out["pixel"].append((y * nx + x)[ok])
     if not out["signal"]:
         return {"signal": np.zeros(0), "background": np.zeros(0),
                 "fraction": np.zeros((0, 25)), "event": np.zeros(0, int),
-                "group": np.zeros(0, int)}
+                "group": np.zeros(0, int), "pixel": np.zeros(0, int)}
     return {k: np.concatenate(v) for k, v in out.items()}
 
 
@@ -212,18 +222,22 @@ def _clipped(values, nsigma=3.0, rounds=5):
 
 def summarise_events(events, bins=None, min_signal=200.0, per_decade=6, min_count=10,
                      max_fraction=0.1):
-    """alpha(S, 0) per direction in logarithmic signal bins.
+    """alpha(S, 0) per direction in logarithmic signal bins, hot pixels as the unit.
 
     Parameters
     ----------
     events : dict
-        From :func:`measure_events` (or several concatenated).
+        From :func:`measure_events` (or several concatenated). With a
+        ``pixel`` key (one id per hot pixel, the same in every integration)
+        the measurements of one pixel in a bin are averaged before the
+        pixels are; without it every measurement is its own pixel.
     bins : array_like, optional
         Bin edges [e-]; default ``per_decade`` logarithmic bins from
         ``min_signal`` to the largest signal, sparse ones merged with their
         neighbours.
     min_count : int
-        Bins with fewer measurements are merged (default bins) or left out.
+        Bins with fewer measurements are merged (default bins) or left out;
+        a bin also needs 3 pixels for an error from their scatter.
     max_fraction : float
         A measurement where any pixel of the box other than the centre holds
         more than this fraction of the total (either sign) is not coupling (a
@@ -232,12 +246,14 @@ def summarise_events(events, bins=None, min_signal=200.0, per_decade=6, min_coun
     Returns
     -------
     list of dict
-        Per bin: ``signal`` (mean [e-]), ``signal_range``, ``n``, and per
-        direction ``{"value", "error", "halves": [first, second]}`` (the
+        Per bin: ``signal`` (mean [e-]), ``signal_range``, ``n``
+        (measurements), ``n_pixels``, and per direction ``{"value", "error",
+        "n", "halves": [first, second]}`` (value and error over pixels; the
         halves are the two sides, e.g. +x and -x, each a clipped mean).
     """
     s = np.asarray(events["signal"], np.float64)
     frac = np.asarray(events["fraction"], np.float64).reshape(-1, 25)
+    pixel = np.asarray(events.get("pixel", np.arange(s.size)))
     others = np.delete(frac, _BOX.index((0, 0)), axis=1) if frac.size else frac
     use = (s >= float(min_signal)) & np.all(np.abs(others) <= float(max_fraction), axis=1)
     if bins is None:
@@ -250,21 +266,46 @@ def summarise_events(events, bins=None, min_signal=200.0, per_decade=6, min_coun
     rows = []
     for lo, hi in zip(bins[:-1], bins[1:]):
         sel = use & (s >= lo) & (s < hi)
-        if sel.sum() < min_count:
+        ids, cluster = np.unique(pixel[sel], return_inverse=True)
+        if sel.sum() < min_count or ids.size < 3:
             continue
         row = {"signal": float(s[sel].mean()), "signal_range": [float(lo), float(hi)],
                "background": float(np.mean(np.asarray(events["background"])[sel])),
-               "n": int(sel.sum())}
+               "n": int(sel.sum()), "n_pixels": int(ids.size)}
         for name, offsets in DIRECTIONS.items():
             cols = [_BOX.index(o) for o in offsets]
-            per_event = frac[sel][:, cols].mean(axis=1)
-            value, err, kept = _clipped(per_event)
             half = len(cols) // 2
-            halves = [_clipped(frac[sel][:, cols[:half]].mean(axis=1))[0],
-                      _clipped(frac[sel][:, cols[half:]].mean(axis=1))[0]]
+            value, err, kept = _clipped(_per_pixel(frac[sel][:, cols].mean(axis=1), cluster))
+            halves = [_clipped(_per_pixel(frac[sel][:, c].mean(axis=1), cluster))[0]
+                      for c in (cols[:half], cols[half:])]
             row[name] = {"value": value, "error": err, "n": kept, "halves": halves}
         rows.append(row)
     return rows
+
+
+def _per_pixel(values, cluster):
+    """The mean of ``values`` per cluster (hot pixel)."""
+    total = np.bincount(cluster, weights=values)
+    return total / np.bincount(cluster)
+
+
+def select_events(events, keep):
+    """The measurements of ``events`` where ``keep`` (bool per measurement) holds."""
+    return {k: np.asarray(v)[keep] for k, v in events.items()}
+
+
+def fold_of(pixel, k, seed=0):
+    """Fold index (0..k-1) of each hot pixel id: a fixed pseudo-random
+    assignment by id, so a pixel is in the same fold in every integration."""
+    ids, inverse = np.unique(np.asarray(pixel), return_inverse=True)
+    order = np.random.default_rng(seed).permutation(ids.size)
+    return (order % int(k))[inverse]
+
+
+def nn_fraction(events):
+    """Per measurement, the mean of the four nearest neighbours' fractions."""
+    frac = np.asarray(events["fraction"]).reshape(-1, 5, 5)
+    return (frac[:, 1, 2] + frac[:, 3, 2] + frac[:, 2, 1] + frac[:, 2, 3]) / 4.0
 
 
 def _merge_sparse(edges, values, min_count):

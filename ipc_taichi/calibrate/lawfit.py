@@ -11,8 +11,7 @@ of the law), flats give ``N = S`` (``alpha(S, S)``, its diagonal).
    nearest-neighbour coupling). A weight that comes out negative is set to 0
    and said in the result.
 2. **Law.** The nearest-neighbour points divided by their weights are fitted
-   by each form, and the forms are compared by the Bayesian information
-   criterion ``BIC = chi^2 + k ln n`` (the lowest wins):
+   by each form:
 
    - ``constant``: one number;
    - ``donlon2018_free``: the paper's family ``a exp(-|S-N|/s_d) +
@@ -23,8 +22,17 @@ of the law), flats give ``N = S`` (``alpha(S, S)``, its diagonal).
      ``h(S) = alpha(S, 0)`` and ``d(S) = alpha(S, S)``, joined by the
      asymmetry ``t = |S-N| / (S+N)``:
      ``alpha(S, N) = (1 - t) d((S+N)/2) + t h(S+N)``. Symmetric by
-     construction, exact on both cross-sections, free to rise or fall;
-     outside the measured signals each curve is held at its end value.
+     construction, exact on both cross-sections, free to rise or fall.
+
+   The form is chosen by **held-out evidence** (:func:`choose_law`): each
+   form is fitted on all folds of the data but one (hot pixels by position,
+   flat-ramp blocks) and scored on the fold left out; a richer form replaces
+   a simpler one only when it predicts the held-out points better by
+   :data:`MARGIN` standard errors, and a form whose measured cross-sections
+   are not monotone must beat the best monotone one. Chi^2 on the fitted
+   points (and BIC) are reported, not used: with errors that are too small
+   they reward wiggles. Outside the measured range of ``S + N`` every law is
+   held at its end value (said in the result).
 
    With only one cross-section measured, the other is assumed to follow the
    same function of ``S + N`` (``alpha(S, S) = alpha(2S, 0)``), and the result
@@ -40,7 +48,8 @@ from scipy.optimize import least_squares
 from ..geometry import Geometry
 from ..laws import ParametricLaw, TabulatedLaw, donlon2018
 
-__all__ = ["FORMS", "geometry_weights", "fit_law", "smooth_law", "SmoothLaw"]
+__all__ = ["FORMS", "MARGIN", "geometry_weights", "choose_law", "fit_law", "fit_forms",
+           "model_of", "smooth_law", "SmoothLaw"]
 
 FORMS = ("constant", "donlon2018_free", "smooth")
 _AXES = ("x", "y", "diagonal", "second_x", "second_y")
@@ -219,59 +228,228 @@ def smooth_law(law, signal_max, n=161, name="calibrated:smooth"):
     return TabulatedLaw.from_callable(law, signal_range=(0.0, float(signal_max)), n=n, name=name)
 
 
-def fit_law(hot_rows, flat_rows, max_degree=3):
-    """Fit the geometry and every law form; choose by BIC.
+MARGIN = 2.0
+"""A richer law must beat a simpler one on held-out points by this many
+standard errors of the difference (:func:`choose_law`)."""
+
+
+def _held(func, lo, hi):
+    """``func`` held outside ``lo <= S + N <= hi``: the arguments are scaled
+    along their ray so their sum is clipped into the range (the law is not
+    extrapolated where nothing was measured)."""
+    def held(s, n):
+        s, n = np.asarray(s, float), np.asarray(n, float)
+        total = s + n
+        safe = np.where(total > 0, total, 1.0)
+        scale = np.clip(safe, lo, hi) / safe
+        return func(np.where(total > 0, s * scale, 0.5 * lo),
+                    np.where(total > 0, n * scale, 0.5 * lo))
+    return held
+
+
+def _monotone(func, S, N, src):
+    """Whether each measured cross-section of ``func`` is monotone over its measured range."""
+    for kind in ("hot", "flat"):
+        sel = src == kind
+        if not sel.any():
+            continue
+        grid = np.geomspace(max(S[sel].min(), 1.0), max(S[sel].max(), 2.0), 64)
+        neighbour = np.full_like(grid, float(np.median(N[sel]))) if kind == "hot" else grid
+        d = np.diff(np.asarray(func(grid, neighbour), float))
+        tol = 1e-9 * max(float(np.max(np.abs(func(grid, neighbour)))), 1e-12)
+        if not (np.all(d >= -tol) or np.all(d <= tol)):
+            return False
+    return True
+
+
+def fit_forms(hot_rows, flat_rows, max_degree=3):
+    """Every form fitted to the points of ``hot_rows`` and ``flat_rows``.
+
+    Returns
+    -------
+    dict or None
+        ``weights``, ``weight_errors``, ``notes``, the points (``S``, ``N``,
+        ``A``, ``E``, ``src``) and ``forms``: name -> ``{"k", "alpha"
+        (callable, held outside the measured range), "model", "model_error",
+        "info", "monotone"}``; None when there is no point.
+    """
+    points = _points(hot_rows, flat_rows)
+    if not points:
+        return None
+    weights, werr, notes = geometry_weights(points)
+    S, N, A, E, src = _nn_alpha(points, weights)
+    n = len(S)
+    total = S + N
+    lo, hi = max(float(total.min()), 1.0), float(total.max())
+    forms = {}
+    c = float(np.sum(A / E ** 2) / np.sum(1 / E ** 2))
+    ce = 1 / math.sqrt(np.sum(1 / E ** 2))
+    forms["constant"] = {"k": 1, "alpha": lambda s, n, c=c: np.full(np.broadcast(s, n).shape, c),
+                         "model": np.full(n, c), "model_error": np.full(n, ce),
+                         "info": {"alpha": c, "alpha_error": ce}}
+    if n >= 6:
+        law, k, model, merr, info = _fit_donlon(S, N, A, E)
+        forms["donlon2018_free"] = {"k": k, "alpha": _held(law.alpha, lo, hi), "model": model,
+                                    "model_error": merr, "info": info}
+    hot, flat = (src == "hot").any(), (src == "flat").any()
+    for dh in range(0, max_degree + 1 if hot else 1):
+        for dd in range(0, max_degree + 1 if flat else 1):
+            law, k, model, merr, info = _fit_smooth(S, N, A, E, src, dh, dd)
+            if k >= n:
+                continue
+            forms[f"smooth({dh},{dd})"] = {"k": k, "alpha": law, "model": model,
+                                           "model_error": merr, "info": info}
+    for form in forms.values():
+        form["monotone"] = _monotone(form["alpha"], S, N, src)
+    return {"weights": weights, "weight_errors": werr, "notes": notes, "S": S, "N": N, "A": A,
+            "E": E, "src": src, "forms": forms, "total_range": (lo, hi)}
+
+
+def _held_out_scores(points_for, folds, names):
+    """Per form and fold: chi^2 of the held-out fold's points against the
+    form fitted on the other folds (inf where the form could not be fitted,
+    NaN for every form where the fold held no point)."""
+    scores = {name: np.full(folds, np.nan) for name in names}
+    fits = {name: [] for name in names}
+    counts = np.zeros(folds, int)
+    for f in range(folds):
+        train = fit_forms(*points_for([g for g in range(folds) if g != f]))
+        test_points = _points(*points_for([f]))
+        if train is None or not test_points:
+            continue  # nothing to score in this fold: NaN for every form
+        for name in names:
+            scores[name][f] = np.inf  # unless the form could be fitted
+        S, N, A, E, _ = _nn_alpha(test_points, train["weights"])
+        counts[f] = S.size
+        for name in names:
+            if name in train["forms"]:
+                pred = train["forms"][name]["alpha"](S, N)
+                scores[name][f] = float(np.sum(((A - pred) / E) ** 2))
+                fits[name].append(train["forms"][name]["alpha"])
+    return scores, fits, counts
+
+
+def _beats(a, b):
+    """(margin in standard errors, whether fold scores ``a`` beat ``b`` by :data:`MARGIN`)."""
+    scored = ~np.isnan(a) & ~np.isnan(b)
+    used = scored & np.isfinite(a) & np.isfinite(b)
+    if used.sum() < 2 or not np.isfinite(a[scored]).all():
+        return float("nan"), False
+    d = b[used] - a[used]  # > 0 where a predicts better
+    se = math.sqrt(used.sum() * np.var(d, ddof=1))
+    margin = float(d.sum() / se) if se > 0 else (float("inf") if d.sum() > 0 else 0.0)
+    return margin, margin >= MARGIN
+
+
+def _band(fits, full_alpha, grid, neighbour):
+    """The law and its 1-sigma band along ``(grid, neighbour)``: delete-a-fold
+    jackknife of the fits on the other folds."""
+    centre = np.asarray(full_alpha(grid, neighbour), float)
+    if len(fits) < 2:
+        return centre, np.full_like(centre, np.nan)
+    values = np.array([np.asarray(f(grid, neighbour), float) for f in fits])
+    k = len(fits)
+    err = np.sqrt((k - 1) / k * np.sum((values - values.mean(axis=0)) ** 2, axis=0))
+    return centre, err
+
+
+def model_of(fitted, name):
+    """``(geometry, law)`` of form ``name`` of a :func:`fit_forms` result:
+    the constant as a parametric law, every other form sampled onto a table
+    (held outside the measured range)."""
+    form = fitted["forms"][name]
+    w = fitted["weights"]
+    geometry = Geometry.terms(horizontal=w["x"], vertical=w["y"], diagonal=w["diagonal"],
+                              second_horizontal=w["second_x"], second_vertical=w["second_y"])
+    if name == "constant":
+        c = form["info"]["alpha"]
+        return geometry, ParametricLaw(0.0, 1.0, 0.0, 1.0, c, name=f"calibrated:constant:{c:.6g}")
+    smax = max(1.1 * float(np.max(fitted["S"] + fitted["N"])), 65536.0)
+    return geometry, smooth_law(form["alpha"], smax, name=f"calibrated:{name}")
+
+
+def choose_law(points_for, folds=5, max_degree=3):
+    """Fit the geometry and every law form; choose by held-out evidence.
+
+    Each form is fitted on all folds but one and scored (chi^2) on the fold
+    left out, in turn. A form with more parameters replaces a simpler one
+    only if its held-out chi^2 is lower by :data:`MARGIN` standard errors
+    of the difference (from the scatter over folds); forms whose measured
+    cross-sections are monotone are preferred, and a non-monotone one must
+    beat the best monotone one by the same margin. The constant is the
+    simplest form, so a signal dependence is written only where held-out
+    data demand it.
+
+    Parameters
+    ----------
+    points_for : callable
+        ``points_for(folds)`` -> ``(hot_rows, flat_rows)`` measured on the
+        given fold indices only (``None``: all the data).
+    folds : int
+        Number of folds (hot pixels by position, flat-ramp blocks).
+    max_degree : int
+        Highest polynomial degree of the ``smooth`` forms.
 
     Returns
     -------
     geometry : Geometry
     law : ParametricLaw or TabulatedLaw
     fit : dict
-        ``chosen``, ``forms`` (each: ``k``, ``chi2``, ``bic``), ``weights``,
-        ``weight_errors``, ``points`` (per measured point: source, S, N, measured,
-        model, model error, pull), ``assumed``, ``notes``.
+        ``chosen``, ``forms`` (per form: ``k``, ``chi2``, ``bic``,
+        ``held_out`` chi^2, ``monotone``, its fit's parameters), the
+        ``law_choice`` record (``held_out`` per form, margins against the
+        constant, ``constant_fits_as_well``), ``band`` (the law and its
+        error along ``(S, 0)`` and ``(S, S)``), ``weights``, ``points`` (per
+        measured point: source, S, N, measured, model, pull), ``assumed``,
+        ``held_outside``, ``notes``.
     """
-    points = _points(hot_rows, flat_rows)
-    if not points:
+    full = fit_forms(*points_for(None), max_degree=max_degree)
+    if full is None:
         raise ValueError("nothing to fit: no measured point (no isolated hot pixel and no "
                          "usable flat level)")
-    weights, werr, notes = geometry_weights(points)
-    S, N, A, E, src = _nn_alpha(points, weights)
-    n = len(S)
-    candidates = []
-    c = float(np.sum(A / E ** 2) / np.sum(1 / E ** 2))
-    candidates.append(("constant", 1, np.full(n, c), np.full(n, 1 / math.sqrt(np.sum(1 / E ** 2))),
-                       {"alpha": c}, lambda: ParametricLaw(0.0, 1.0, 0.0, 1.0, c,
-                                                           name=f"calibrated:constant:{c:.6g}")))
-    if n >= 6:
-        law, k, model, merr, info = _fit_donlon(S, N, A, E)
-        candidates.append(("donlon2018_free", k, model, merr, info, lambda law=law: law))
-    smax = 1.1 * float(np.max(S + N))
-    for dh in range(0, max_degree + 1):
-        for dd in range(0, max_degree + 1):
-            if (src == "hot").any() and not (src == "flat").any() and dd:
+    S, N, A, E, src = full["S"], full["N"], full["A"], full["E"], full["src"]
+    forms = full["forms"]
+    scores, fold_fits, counts = _held_out_scores(points_for, folds, list(forms))
+    order = sorted(forms, key=lambda name: (forms[name]["k"], name))
+    chosen = "constant"
+    margins = {}
+    for name in order[1:]:
+        margins[name], _ = _beats(scores[name], scores["constant"])
+    for monotone_pass in (True, False):
+        for name in order:
+            if forms[name]["monotone"] != monotone_pass or name == chosen:
                 continue
-            if (src == "flat").any() and not (src == "hot").any() and dh:
-                continue
-            law, k, model, merr, info = _fit_smooth(S, N, A, E, src, dh, dd)
-            if k >= n:
-                continue
-            candidates.append((f"smooth({dh},{dd})", k, model, merr, info,
-                               lambda law=law: smooth_law(law, max(smax, 65536.0))))
-    forms = {}
-    for name, k, model, _merr, info, _ in candidates:
-        chi2 = float(np.sum(((model - A) / E) ** 2))
-        forms[name] = {"k": k, "chi2": chi2, "bic": chi2 + k * math.log(n), **info}
+            better, ok = _beats(scores[name], scores[chosen])
+            if ok and np.nansum(scores[name]) < np.nansum(scores[chosen]):
+                chosen = name
+    form = forms[chosen]
+    geometry, law = model_of(full, chosen)
+    grid = np.geomspace(max(float(S.min()) * 0.5, 10.0), float(S.max()) * 1.5, 48)
+    band = {"signal": grid.tolist()}
+    for key, neighbour in (("alpha_s0", 0.0 * grid), ("alpha_ss", grid)):
+        centre, err = _band(fold_fits[chosen], form["alpha"], grid, neighbour)
+        band[key] = centre.tolist()
+        band[key + "_error"] = err.tolist()
+    best_other = min((n for n in forms if n != "constant"),
+                     key=lambda n: np.nansum(scores[n]), default=None)
+    constant_as_well = chosen == "constant" or not _beats(scores[chosen],
+                                                         scores["constant"])[1]
+    choice = {"chosen": chosen, "folds": int(folds), "margin": MARGIN,
+              "held_out_points": counts.tolist(),
+              "held_out": {n: {"score": float(np.nansum(scores[n])),
+                               "per_fold": scores[n].tolist()} for n in forms},
+              "margin_against_constant": margins,
+              "best_richer_form": best_other,
+              "constant_fits_as_well": bool(constant_as_well)}
+    table = {}
+    for name, f in forms.items():
+        chi2 = float(np.sum(((f["model"] - A) / E) ** 2))
+        table[name] = {"k": f["k"], "chi2": chi2, "bic": chi2 + f["k"] * math.log(len(S)),
+                       "held_out": float(np.nansum(scores[name])), "monotone": f["monotone"],
+                       **f["info"]}
     paper = donlon2018().alpha(S, N)
-    forms["donlon2018 (the paper's law, not fitted)"] = {
+    table["donlon2018 (the paper's law, not fitted)"] = {
         "k": 0, "chi2": float(np.sum(((paper - A) / E) ** 2))}
-    chosen = min((c for c in candidates), key=lambda c: forms[c[0]]["bic"])
-    name, k, model, merr, info, make = chosen
-    law = make()
-    geometry = Geometry.terms(horizontal=weights["x"], vertical=weights["y"],
-                              diagonal=weights["diagonal"],
-                              second_horizontal=weights["second_x"],
-                              second_vertical=weights["second_y"])
     assumed = []
     if not (src == "flat").any():
         assumed.append("no flat measured: alpha(S,S) assumed equal to alpha(2S,0) "
@@ -279,13 +457,31 @@ def fit_law(hot_rows, flat_rows, max_degree=3):
     if not (src == "hot").any():
         assumed.append("no hot pixel measured: alpha(S,0) assumed equal to alpha(S/2,S/2) "
                        "(the law taken as a function of S+N)")
-    rows = []
-    for i in range(n):
-        rows.append({"source": src[i], "signal": float(S[i]), "neighbour": float(N[i]),
-                     "alpha_measured": float(A[i]), "error": float(E[i]),
-                     "alpha_model": float(model[i]), "model_error": float(merr[i]),
-                     "pull": float((A[i] - model[i]) / E[i])})
-    fit = {"chosen": name, "law": law.describe(), "forms": forms, "weights": weights,
-           "weight_errors": werr, "points": rows, "assumed": assumed, "notes": notes,
-           "chi2_per_point": float(forms[name]["chi2"] / n), "n_points": n}
+    lo, hi = full["total_range"]
+    held = {"total_signal_range": [lo, hi],
+            "note": f"outside {lo:.4g} <= S+N <= {hi:.4g} e- nothing was measured: the law is "
+                    "held at its value at the end of the range, not extrapolated"}
+    model = form["model"]
+    rows = [{"source": src[i], "signal": float(S[i]), "neighbour": float(N[i]),
+             "alpha_measured": float(A[i]), "error": float(E[i]),
+             "alpha_model": float(model[i]), "model_error": float(form["model_error"][i]),
+             "pull": float((A[i] - model[i]) / E[i])} for i in range(len(S))]
+    fit = {"chosen": chosen, "law": law.describe(), "forms": table, "law_choice": choice,
+           "band": band, "weights": full["weights"], "weight_errors": full["weight_errors"],
+           "points": rows, "assumed": assumed, "held_outside": held, "notes": full["notes"],
+           "chi2_per_point": float(table[chosen]["chi2"] / len(S)), "n_points": len(S)}
     return geometry, law, fit
+
+
+def fit_law(hot_rows, flat_rows, max_degree=3):
+    """:func:`choose_law` on points without a fold structure of their own:
+    the rows are split into two interleaved folds (by their order, i.e. by
+    signal), which tests whether a dependence on signal predicts the
+    neighbouring points."""
+    def points_for(folds):
+        if folds is None:
+            return hot_rows, flat_rows
+        keep = set(folds)
+        return ([r for i, r in enumerate(hot_rows or ()) if i % 2 in keep],
+                [r for i, r in enumerate(flat_rows or ()) if i % 2 in keep])
+    return choose_law(points_for, folds=2, max_degree=max_degree)

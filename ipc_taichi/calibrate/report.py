@@ -1,12 +1,14 @@
-"""The calibration report (JSON) and its figures.
+"""The calibration report (JSON), its console summary and its figures.
 
 The report holds everything measured and how the law was chosen, so a reader
-can check the model file against the data: the inputs and their units, the
-read noise, the hot-pixel bins (alpha(S, 0) per direction), the flat levels
-(alpha(S, S) per axis, the covariances, the Poisson check), the growth of
-each flat term with signal (brighter-fatter check), every law form's BIC, the
-fit per point (measured, model, pull) and a list ``not_measured`` that says
-what could not be measured and why.
+can check the model file against the data: the inputs as read (layout,
+units, gain), the gain measured by flat ramps, classical non-linearity, the
+brighter-fatter kernel, the evidence on non-linear IPC, the hot-pixel bins
+(alpha(S, 0) per direction), the flat levels (alpha(S, S) per axis with
+brighter-fatter removed where ramps allowed), the held-out law choice and
+the law's band, the transfer check on held-out hot pixels, the fit per point
+(measured, model, pull) and the lists ``not_measured``, ``notes`` and
+``assumed``. :func:`summary_lines` is what the command line prints.
 """
 
 import os
@@ -16,7 +18,7 @@ import numpy as np
 from ..fitsio import write_json
 from .hotpixels import DIRECTIONS
 
-__all__ = ["write_report", "write_figures", "json_ready"]
+__all__ = ["write_report", "write_figures", "json_ready", "summary_lines"]
 
 
 def json_ready(value):
@@ -30,27 +32,246 @@ def json_ready(value):
     return value
 
 
+def _pm(value, error, scale=1.0, fmt=".3g", unit=""):
+    if value is None:
+        return "not measured"
+    err = "" if error is None else f" +- {scale * error:{fmt.lstrip('+')}}"
+    return f"{scale * value:{fmt}}{err}{unit}"
+
+
+def _bf_line(bf):
+    if not bf.get("measured"):
+        return f"brighter-fatter: not measured: {bf.get('note') or 'no flat ramps'}"
+    k, e = bf.get("kernel"), bf.get("kernel_error")
+    nearest = ""
+    if k is not None:
+        ax = 0.5 * (k[2][1] + k[2][3])
+        ay = 0.5 * (k[1][2] + k[3][2])
+        ex = 0.5 * (e[2][1] ** 2 + e[2][3] ** 2) ** 0.5 if e else None
+        ey = 0.5 * (e[1][2] ** 2 + e[3][2] ** 2) ** 0.5 if e else None
+        nearest = (f"; kernel a(0,+-1) {_pm(ax, ex, 1e7, '.3f')}e-7, a(+-1,0) "
+                   f"{_pm(ay, ey, 1e7, '.3f')}e-7, a(0,0) {1e7 * k[2][2]:.3f}e-7 per e-")
+    state = "DETECTED" if bf.get("detected") else "not detected"
+    sig = bf.get("significance")
+    sig = f" ({sig:.1f} sigma)" if sig is not None else ""
+    return (f"brighter-fatter: {state}{sig}{nearest}; kept in the model file, never removed "
+            "by decouple")
+
+
+def summary_lines(document, model):
+    """What ``ipc-taichi calibrate`` prints: the inputs as read, each effect
+    measured or not, the law chosen (and whether a constant does as well),
+    the held-out check, what was assumed or not measured."""
+    lines = []
+    for item in document.get("inputs", []):
+        what = "; ".join(x for x in (item.get("layout_reason"), item.get("units_note")) if x)
+        lines.append(f"input ({item['role']}): {item['file']}: {what}")
+    g = document.get("gain") or {}
+    if g.get("measured") is not None:
+        given = "none" if g.get("given") is None else f"{g['given']:.4g} ({g.get('source')})"
+        lines.append(f"gain: given {given}; measured by the flat ramps "
+                     f"{_pm(g['measured'], g.get('error'), fmt='.4g')} e-/DN")
+    lines.append(_bf_line(document.get("brighter_fatter") or {}))
+    nl = document.get("classical_nonlinearity") or {}
+    if nl.get("measured"):
+        lines.append(f"classical non-linearity: beta {_pm(nl['beta'], nl.get('error'), 1e6)}"
+                     f"e-6 per e- ({'detected' if nl.get('detected') else 'not detected'})")
+    nli = document.get("nonlinear_ipc") or {}
+    lines.append(f"non-linear IPC: {'DETECTED' if nli.get('detected') else 'not detected'}: "
+                 f"{nli.get('note', '')}")
+    lines.append(f"law: {model.describe()}")
+    choice = document.get("law_choice") or {}
+    if choice.get("constant_fits_as_well"):
+        lines.append("law: a constant fits the held-out data as well as any signal-dependent "
+                     "law")
+    t = document.get("transfer")
+    if t:
+        parts = []
+        for key, name in (("chosen", f"chosen law ({t['form']})"), ("constant", "best constant"),
+                          ("uncorrected", "not decoupled")):
+            r = t[key]
+            parts.append(f"{name} {_pm(r['residual'], r['error'], 100, '+.3f', ' %')}")
+        lines.append(f"held-out hot pixels ({t['chosen']['n_pixels']}), neighbour residual: "
+                     + "; ".join(parts))
+    for line in document.get("not_measured", []):
+        lines.append(f"not measured: {line}")
+    for line in (document.get("fit") or {}).get("assumed") or []:
+        lines.append(f"assumed: {line}")
+    for line in document.get("notes", []):
+        lines.append(f"note: {line}")
+    return lines
+
+
 def write_report(document, path, overwrite=False):
     """Write the report ``document`` to ``path`` atomically (NaN written as null)."""
     return write_json(path, json_ready(document), overwrite)
 
 
-def write_figures(folder, hot_rows, flat_rows, law, geometry):
-    """One PNG per direction: measured points (hot pixels at (S, B), flats at
-    (S, S)) against the fitted ``w alpha``; returns the paths written."""
+def _nearest_points(fit, source):
+    pts = [p for p in (fit or {}).get("points", []) if p["source"] == source]
+    return ([p["signal"] for p in pts], [100 * p["alpha_measured"] for p in pts],
+            [100 * p["error"] for p in pts])
+
+
+def _law_figure(ax, fit, law):
+    """Nearest-neighbour alpha: points at (S, 0) and (S, S), the law and its band."""
+    band = (fit or {}).get("band")
+    for source, key, label, marker in (("hot", "alpha_s0", "(S, 0)", "o"),
+                                       ("flat", "alpha_ss", "(S, S)", "s")):
+        s, a, e = _nearest_points(fit, source)
+        if s:
+            ax.errorbar(s, a, e, fmt=marker, ms=4,
+                        label=f"measured {label}: {'hot pixels' if source == 'hot' else 'flats'}")
+        if band:
+            grid = np.array(band["signal"])
+            centre = 100 * np.array(band[key], float)
+            err = 100 * np.array([np.nan if v is None else v for v in band[key + "_error"]],
+                                 float)
+            line, = ax.plot(grid, centre, "-" if source == "hot" else "--",
+                            label=f"law at {label}")
+            ax.fill_between(grid, centre - err, centre + err, color=line.get_color(),
+                            alpha=0.25, lw=0)
+    held = (fit or {}).get("held_outside")
+    if held:
+        lo, hi = held["total_signal_range"]
+        left, right = ax.get_xlim()
+        ax.axvspan(hi, max(right, 1.5 * hi), color="0.9", label="not measured (law held)")
+        if left < lo:
+            ax.axvspan(left, lo, color="0.9")
+    ax.set_xscale("log")
+    ax.set_xlabel("signal S [e-]")
+    ax.set_ylabel("nearest-neighbour alpha [%]")
+    ax.set_title(f"Calibrated law: {(fit or {}).get('chosen')} (band: 1 sigma, held-out folds)")
+    ax.legend(fontsize=7)
+
+
+def _map_figure(fig, ax, law, top):
+    grid = np.linspace(0.0, top, 121)
+    s, n = np.meshgrid(grid, grid, indexing="ij")
+    im = ax.imshow(100 * law.alpha(s, n).T, origin="lower", extent=(0, top, 0, top),
+                   aspect="auto")
+    fig.colorbar(im, ax=ax, label="alpha(S, N) [%]")
+    ax.set_xlabel("S (pixel) [e-]")
+    ax.set_ylabel("N (neighbour) [e-]")
+    ax.set_title("The law alpha(S, N)")
+
+
+def _stamp_figure(fig, axes, transfer):
+    stamps = [100 * np.array(transfer[key]["stamp"], float) for key in ("uncorrected", "chosen")]
+    lim = max(max(np.max(np.abs(np.delete(s.ravel(), 12))) for s in stamps), 1e-3)
+    for ax, stamp, title in zip(axes, stamps, ("hot pixels as measured",
+                                               "decoupled (held-out law)")):
+        shown = stamp.copy()
+        shown[2, 2] = np.nan  # the centre holds ~95 %: shown as a number only
+        im = ax.imshow(shown, cmap="RdBu_r", vmin=-lim, vmax=lim, origin="lower",
+                       extent=(-2.5, 2.5, -2.5, 2.5))
+        for (y, x), v in np.ndenumerate(stamp):
+            ax.text(x - 2, y - 2, f"{v:.2f}", ha="center", va="center", fontsize=7)
+        ax.set_title(f"mean stamp, {title} [%]", fontsize=9)
+        ax.set_xlabel("dx")
+        ax.set_ylabel("dy")
+    fig.colorbar(im, ax=list(axes), label="fraction of the hot pixel's charge [%]")
+
+
+def _kernel_figure(fig, ax, bf):
+    k = 1e7 * np.array(bf["kernel"], float)
+    e = 1e7 * np.array(bf["kernel_error"], float) if bf.get("kernel_error") else None
+    lim = np.max(np.abs(k))
+    im = ax.imshow(k, cmap="RdBu_r", vmin=-lim, vmax=lim, origin="lower",
+                   extent=(-2.5, 2.5, -2.5, 2.5))
+    for (y, x), v in np.ndenumerate(k):
+        text = f"{v:.2f}" + (f"\n+-{e[y, x]:.2f}" if e is not None else "")
+        ax.text(x - 2, y - 2, text, ha="center", va="center", fontsize=6)
+    fig.colorbar(im, ax=ax, label="a(dy, dx) [1e-7 per e-]")
+    ax.set_xlabel("dx")
+    ax.set_ylabel("dy")
+    state = "detected" if bf.get("detected") else "not detected"
+    ax.set_title(f"Brighter-fatter kernel ({state})")
+
+
+def _covariance_figure(fig, axes, curves):
+    """Normalised same-interval covariance against signal per lag, measured and
+    as the IPC-only, non-linear-IPC and brighter-fatter models predict it."""
+    for ax, curve in zip(axes, curves):
+        level = np.array(curve["level"], float)
+        ax.errorbar(level, curve["measured"], curve.get("error"), fmt="o", ms=3,
+                    label="measured")
+        for variant, values in curve.get("predictions", {}).items():
+            ax.plot(level, values, "-", lw=1, label=variant.replace("_", " "))
+        ax.set_title(f"lag {tuple(curve['lag'])}", fontsize=9)
+        ax.set_xlabel("signal at the read [e-]")
+    axes[0].set_ylabel("C(lag) / shot variance")
+    axes[0].legend(fontsize=6)
+
+
+def write_figures(folder, document, law, geometry):
+    """The figures of a calibration, PNG, in ``folder``; returns the paths.
+
+    ``calibrate_law.png`` (the nearest-neighbour law with its band against
+    the points at (S, 0) and (S, S)), ``calibrate_map.png`` (alpha(S, N)),
+    ``calibrate_stamp.png`` (the mean hot-pixel stamp before and after
+    decoupling with the held-out law), ``calibrate_bf_kernel.png`` (the
+    brighter-fatter kernel), ``calibrate_covariance.png`` (flat-ramp
+    covariances against signal with each model's prediction), and one
+    ``calibrate_<direction>.png`` per direction (measured against ``w
+    alpha``). A figure whose data were not measured is not written.
+    """
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     os.makedirs(folder, exist_ok=True)
+    paths = []
+
+    def save(fig, name):
+        path = os.path.join(folder, name)
+        if fig.get_layout_engine() is None:
+            fig.tight_layout()
+        fig.savefig(path, dpi=100)
+        plt.close(fig)
+        paths.append(path)
+
+    fit = document.get("fit") or {}
+    hot_rows = (document.get("hot_pixels") or {}).get("bins", [])
+    flat_rows = (document.get("flats") or {}).get("levels", [])
+    signals = [r["signal"] for r in hot_rows] + [r["level"] for r in flat_rows if r.get("terms")]
+    if signals:
+        fig, ax = plt.subplots(figsize=(7, 4.5))
+        _law_figure(ax, fit, law)
+        save(fig, "calibrate_law.png")
+        fig, ax = plt.subplots(figsize=(5.5, 4.5))
+        _map_figure(fig, ax, law, 1.2 * max(signals))
+        save(fig, "calibrate_map.png")
+    transfer = document.get("transfer")
+    if transfer and transfer["chosen"].get("stamp") and transfer["uncorrected"].get("stamp"):
+        fig, axes = plt.subplots(1, 2, figsize=(9, 4), layout="constrained")
+        _stamp_figure(fig, axes, transfer)
+        save(fig, "calibrate_stamp.png")
+    bf = document.get("brighter_fatter") or {}
+    if bf.get("measured") and bf.get("kernel") is not None:
+        fig, ax = plt.subplots(figsize=(5.5, 4.5))
+        _kernel_figure(fig, ax, bf)
+        save(fig, "calibrate_bf_kernel.png")
+    ramps = (document.get("flats") or {}).get("ramps") or []
+    curves = ramps[0].get("covariance_curves") if ramps else None
+    if curves:
+        fig, axes = plt.subplots(1, len(curves), figsize=(3.2 * len(curves), 3.6),
+                                 squeeze=False)
+        _covariance_figure(fig, axes[0], curves)
+        save(fig, "calibrate_covariance.png")
+    if signals:
+        paths += _direction_figures(folder, plt, hot_rows, flat_rows, law, geometry, signals)
+    return paths
+
+
+def _direction_figures(folder, plt, hot_rows, flat_rows, law, geometry, signals):
+    """One PNG per direction: measured points (hot pixels at (S, B), flats at
+    (S, S)) against the fitted ``w alpha``."""
     weights = {"x": geometry.weight(0, 1), "y": geometry.weight(1, 0),
                "diagonal": geometry.weight(1, 1), "second_x": geometry.weight(0, 2),
                "second_y": geometry.weight(2, 0)}
     paths = []
-    signals = [r["signal"] for r in hot_rows] + [r["level"] for r in flat_rows if r.get("terms")]
-    if not signals:
-        return paths
     grid = np.geomspace(max(min(signals) * 0.7, 1.0), max(signals) * 1.3, 200)
     for name in DIRECTIONS:
         fig, ax = plt.subplots(figsize=(6, 4))

@@ -1,13 +1,31 @@
 """``calibrate``: darks, flats and reference files in; a coupling-model file out.
 
-The steps are those of a detector laboratory: hot pixels in the darks give
-alpha(S, 0) per direction (:mod:`.hotpixels`), flats give alpha(S, S) per axis
-(:mod:`.flats`), a law symmetric in its two arguments is fitted to both
-(:mod:`.lawfit`), and the model (law, geometry, edge, provenance, fit quality)
-is written with :meth:`ipc_taichi.model.CouplingModel.save`; the report
-(:mod:`.report`) says what was measured, what was assumed and what could not
-be measured. A reference file (:mod:`.reffiles`) alone gives a constant law;
-with measurements it is reported beside them for comparison.
+The steps are those of a detector laboratory:
+
+1. **Hot pixels** in the darks give alpha(S, 0) per direction
+   (:mod:`.hotpixels`); they see the coupling of the charge present at
+   readout and, to first order, no brighter-fatter (their neighbours are
+   empty).
+2. **Flat ramps** (:mod:`.ramps`) separate what flats mix: the gain,
+   classical non-linearity, the IPC kernel with its change with signal
+   (non-linear IPC) and the brighter-fatter kernel, from the time structure
+   of the ramps; their alpha(S, S) points have brighter-fatter removed.
+   Flats of frames at one level (:mod:`.flats`) cannot separate them: the
+   report says so, and where they rise while the hot pixels stay flat it
+   names brighter-fatter as the likely cause and leaves them out of the law.
+3. **The law** (:mod:`.lawfit`): a symmetric alpha(S, N) through both
+   cross-sections, chosen by held-out evidence (folds of hot pixels by
+   position and of flat-ramp blocks), with its uncertainty band.
+4. **Transfer** (:mod:`.transfer`): the chosen law and the best constant,
+   fitted on half the hot pixels, decouple the other half.
+5. The model (law, geometry, edge) is written with
+   :meth:`ipc_taichi.model.CouplingModel.save`, with the brighter-fatter
+   kernel, the non-linearity and the law's band as named sections that the
+   forward simulators may use and ``decouple`` never does; the report
+   (:mod:`.report`) says what was measured, assumed and not measured.
+
+A reference file (:mod:`.reffiles`) alone gives a constant law; with
+measurements it is reported beside them for comparison.
 """
 
 import datetime
@@ -19,10 +37,21 @@ from ..errors import IPCInputError
 from ..fitsio import check_output_path
 from ..model import CouplingModel
 from . import flats as flatmod
-from . import hotpixels, lawfit, reffiles, report
+from . import hotpixels, lawfit, ramps, reffiles, report, transfer
 from .inputs import DEFAULT_DQ_BITS, read_frames
 
 __all__ = ["calibrate"]
+
+SAME_ILLUMINATION = 0.1
+"""Flat ramps whose mean charge per group differs by less than this fraction
+are integrations of one illumination (measured together)."""
+
+PIXELS_PER_FOLD = 6
+"""Fewest hot pixels per held-out fold (a bin's error needs 3 pixels)."""
+
+BF_LIKELY_SIGMA = 3.0
+"""Flats of one level rising by this many sigma while hot pixels stay flat:
+brighter-fatter is named as the likely cause."""
 
 
 def _check_shapes(inputs):
@@ -32,33 +61,151 @@ def _check_shapes(inputs):
         raise IPCInputError(f"inputs of different frame shapes: {listing}")
 
 
-def _measure_darks(darks, threshold, not_measured):
-    events, read_noise, found = [], [], 0
-    for f in darks:
-        for i, integ in enumerate(f.data):
-            last = integ[-1]
-            positions = hotpixels.find_hot_pixels(last, f.mask[i, -1], threshold=threshold)
-            found += len(positions)
-            if len(positions):
-                events.append(hotpixels.measure_events(integ, positions, f.mask[i]))
-            rn = hotpixels.read_noise_from_darks(integ, f.mask[i])
-            if rn is not None:
-                read_noise.append(rn)
-    rows = []
-    if events:
-        merged = {k: np.concatenate([e[k] for e in events]) for k in events[0]}
-        rows = hotpixels.summarise_events(merged)
-    if darks and not rows:
-        not_measured.append("alpha(S,0): no isolated hot pixel in the darks "
-                            f"(threshold {threshold:g} sigma; {found} candidates)")
-    return rows, (float(np.median(read_noise)) if read_noise else None), found
+class _HotPixels:
+    """The darks' hot pixels: every measurement, the integrations they came
+    from (for the transfer check), the signal bins of the full data."""
+
+    def __init__(self, darks, threshold, not_measured):
+        events, self.integrations, read_noise, self.found = [], [], [], 0
+        for f in darks:
+            for i, integ in enumerate(f.data):
+                positions = hotpixels.find_hot_pixels(integ[-1], f.mask[i, -1],
+                                                      threshold=threshold)
+                self.found += len(positions)
+                if len(positions):
+                    events.append(hotpixels.measure_events(integ, positions, f.mask[i]))
+                    self.integrations.append((integ, positions))
+                rn = hotpixels.read_noise_from_darks(integ, f.mask[i])
+                if rn is not None:
+                    read_noise.append(rn)
+        self.read_noise = float(np.median(read_noise)) if read_noise else None
+        self.events = ({k: np.concatenate([e[k] for e in events]) for k in events[0]}
+                       if events else None)
+        self.rows = hotpixels.summarise_events(self.events) if self.events else []
+        self.bins = (np.array([r["signal_range"][0] for r in self.rows]
+                              + [self.rows[-1]["signal_range"][1]]) if self.rows else None)
+        if darks and not self.rows:
+            not_measured.append("alpha(S,0): no isolated hot pixel in the darks (threshold "
+                                f"{threshold:g} sigma; {self.found} candidates)")
+
+    def folds(self, wanted):
+        """The number of folds: ``wanted``, fewer when the hot pixels are few
+        (at least :data:`PIXELS_PER_FOLD` per fold, and 2 folds)."""
+        if self.events is None:
+            return wanted
+        pixels = np.unique(self.events["pixel"]).size
+        return max(2, min(wanted, pixels // PIXELS_PER_FOLD))
+
+    def rows_for(self, folds, k):
+        """Bins measured on the hot pixels of the given folds (all when None)."""
+        if not self.rows:
+            return []
+        if folds is None:
+            return self.rows
+        keep = np.isin(hotpixels.fold_of(self.events["pixel"], k), list(folds))
+        return hotpixels.summarise_events(hotpixels.select_events(self.events, keep),
+                                          bins=self.bins, min_count=3)
+
+    def slope(self):
+        """Weighted slope of the nearest-neighbour alpha(S, 0) per 10 ke- and its significance."""
+        rows = [r for r in self.rows if r["x"]["error"] and r["y"]["error"]]
+        if len(rows) < 2:
+            return None
+        s = np.array([r["signal"] for r in rows]) / 1e4
+        v = np.array([0.5 * (r["x"]["value"] + r["y"]["value"]) for r in rows])
+        e = np.array([0.5 * np.hypot(r["x"]["error"], r["y"]["error"]) for r in rows])
+        return flatmod.weighted_slope(s, v, e)
 
 
-def _measure_flats(flat_files, read_noise, not_measured):
+class _Flats:
+    """Flat inputs: ramps (one :class:`.ramps.FlatRamps` per illumination) and
+    frames at one level (one row per file), with their held-out folds."""
+
+    def __init__(self, flat_files, read_noise, not_measured, notes):
+        self.read_noise = read_noise
+        self.sets, self.frame_files = [], []
+        ramp_files = [f for f in flat_files if f.meta.get("layout") == "ramp"]
+        self.frame_files = [f for f in flat_files if f.meta.get("layout") != "ramp"]
+        for group in _by_illumination(ramp_files):
+            data = np.concatenate([f.data for f in group])
+            mask = np.concatenate([f.mask for f in group])
+            sat = [f.meta.get("saturation") for f in group if f.meta.get("saturation")]
+            label = ", ".join(f.label for f in group)
+            self.sets.append((label, ramps.FlatRamps.from_ramps(
+                data, mask, saturation=min(sat) if sat else None)))
+        self.measured = [(label, s.measure(read_noise=read_noise)) for label, s in self.sets]
+        self.kernels = [m["brighter_fatter"].get("kernel") if m["brighter_fatter"].get("measured")
+                        else None for _, m in self.measured]
+        self.ramp_rows = []
+        for (label, s), kernel in zip(self.sets, self.kernels):
+            rows = s.levels(bf_kernel=kernel, read_noise=read_noise)
+            for r in rows:
+                r["file"] = label
+                r["source"] = "flat ramp"
+            self.ramp_rows += rows
+        self.frame_rows = _measure_frames(self.frame_files, read_noise, not_measured)
+        usable = [r for r in self.ramp_rows + self.frame_rows if r.get("terms")]
+        if flat_files and not usable:
+            not_measured.append("alpha(S,S): no usable flat level")
+        elif len(usable) == 1:
+            not_measured.append("alpha(S,S) at one level only: its change with signal is not "
+                                "measured (held constant)")
+        if self.frame_files:
+            notes.append("flats of frames at one level have no time structure: they cannot "
+                         "tell brighter-fatter and non-linear IPC apart (give flat ramps)")
+
+    @property
+    def rows(self):
+        return self.ramp_rows + self.frame_rows
+
+    def rows_for(self, folds, k, use_frames=True):
+        """Flat points of the given folds (blocks of each ramp set, stripes of
+        each frame file); all when None."""
+        if folds is None:
+            return self.ramp_rows + (self.frame_rows if use_frames else [])
+        rows = []
+        for (_label, s), kernel in zip(self.sets, self.kernels):
+            blocks = [b for b in range(s.n_blocks) if b % k in folds]
+            if blocks:
+                rows += s.levels(blocks=blocks, bf_kernel=kernel, read_noise=self.read_noise)
+        if use_frames:
+            for f in self.frame_files:
+                rows += _measure_frames([f], self.read_noise, [], stripes=(folds, k))
+        return rows
+
+
+def _by_illumination(files):
+    """Ramp files grouped by frame shape, groups and charge per group."""
+    groups = []
+    for f in files:
+        rate = _charge_per_group(f)
+        for g in groups:
+            if (g[0].data.shape[1:] == f.data.shape[1:]
+                    and abs(rate / _charge_per_group(g[0]) - 1) < SAME_ILLUMINATION):
+                g.append(f)
+                break
+        else:
+            groups.append([f])
+    return groups
+
+
+def _charge_per_group(f):
+    d = f.data
+    return float(np.nanmedian(d[:, -1] - d[:, 0]) / max(d.shape[1] - 1, 1))
+
+
+def _measure_frames(flat_files, read_noise, not_measured, stripes=None):
+    """Flats of frames at one level: one row per file (:func:`.flats.measure_level`);
+    ``stripes=(folds, k)`` keeps the horizontal stripes ``y * k // ny`` in ``folds``."""
     rows = []
     for f in flat_files:
         stack = f.data.reshape((-1,) + f.shape2d)
         mask = f.mask.reshape(stack.shape)
+        if stripes is not None:
+            folds, k = stripes
+            ny = stack.shape[-2]
+            keep = np.isin(np.arange(ny) * k // ny, list(folds))
+            mask = mask | ~keep[None, :, None]
         if stack.shape[0] < 2:
             not_measured.append(f"{f.label}: one frame only; a level needs >= 2 frames to "
                                 "cancel the fixed pattern")
@@ -70,21 +217,86 @@ def _measure_flats(flat_files, read_noise, not_measured):
             not_measured.append(f"{f.label}: {exc}")
             continue
         row["file"] = f.path
+        row["source"] = "flat frames"
         if row.get("terms") is None:
             not_measured.append(f"{f.label}: level {row['level']:.4g} e-: {row['problem']}")
         rows.append(row)
-    usable = [r for r in rows if r.get("terms")]
-    if flat_files and len(usable) == 1:
-        not_measured.append("alpha(S,S) at one level only: its change with signal is not "
-                            "measured (held constant)")
-    if flat_files and not usable:
-        not_measured.append("alpha(S,S): no usable flat level")
     return rows
 
 
+def _combine_kernels(measured):
+    """The brighter-fatter kernels of several ramp sets, weighted by their errors."""
+    kernels = [(np.array(m["brighter_fatter"]["kernel"]),
+                np.array(m["brighter_fatter"]["kernel_error"]))
+               for _, m in measured if m["brighter_fatter"].get("measured")]
+    if not kernels:
+        return None, None
+    w = np.array([1.0 / np.maximum(e, 1e-30) ** 2 for _, e in kernels])
+    k = np.array([k for k, _ in kernels])
+    return (w * k).sum(axis=0) / w.sum(axis=0), 1.0 / np.sqrt(w.sum(axis=0))
+
+
+def _effects(flats, hot, gain_given):
+    """The report's ``gain``, ``classical_nonlinearity``, ``brighter_fatter``
+    and the flat ramps' evidence on non-linear IPC."""
+    out = {"gain": {"given": gain_given["value"], "source": gain_given["source"],
+                    "measured": None, "error": None},
+           "classical_nonlinearity": {"measured": False, "detected": False, "beta": None,
+                                      "error": None, "significance": None,
+                                      "form": "M = Q - beta Q^2 (Q collected, M measured, e-)"},
+           "brighter_fatter": {"measured": False, "detected": False, "significance": None,
+                               "kernel": None, "kernel_error": None,
+                               "note": "no flat ramps given (hot pixels and flats "
+                                       "of one level cannot measure it)"},
+           "flat_ramp_nonlinear_ipc": None}
+    if flats is None or not flats.measured:
+        return out
+    label, best = max(flats.measured, key=lambda lm: lm[1].get("n_pixels", 0))
+    ratio = best["gain_ratio"]
+    base = gain_given["value"] if gain_given["value"] is not None else 1.0
+    out["gain"].update(measured=base * ratio["value"], error=base * ratio["error"],
+                       ratio=ratio["value"], ratio_error=ratio["error"], file=label)
+    out["classical_nonlinearity"] = {**out["classical_nonlinearity"],
+                                     **best["classical_nonlinearity"]}
+    kernel, err = _combine_kernels(flats.measured)
+    bf = dict(best["brighter_fatter"])
+    if kernel is not None and len(flats.measured) > 1:
+        bf.update(kernel=kernel.tolist(), kernel_error=err.tolist())
+    out["brighter_fatter"] = bf
+    out["flat_ramp_nonlinear_ipc"] = best["nonlinear_ipc"]
+    return out
+
+
+def _frames_rise_like_bf(flats, hot):
+    """Sentence when one-level flats rise while hot pixels stay flat (else None)."""
+    if flats is None or flats.sets or len(flats.frame_rows) < 2 or not hot.rows:
+        return None
+    growth = flatmod.growth_with_signal(flats.frame_rows)
+    nearest = [growth[t]["significance"] for t in ("x", "y") if t in growth]
+    slope = hot.slope()
+    if not nearest or min(nearest) < BF_LIKELY_SIGMA or slope is None:
+        return None
+    if abs(slope["significance"]) >= BF_LIKELY_SIGMA:
+        return None
+    return (f"the flats' nearest covariances rise with signal ({nearest[0]:+.1f} sigma along "
+            f"x, {nearest[1]:+.1f} along y) while the hot pixels' alpha(S,0) stays flat "
+            f"({slope['significance']:+.1f} sigma): the likely cause is brighter-fatter, which "
+            "frames at one level cannot separate from IPC; the flats were left out of the "
+            "law (give flat ramps to measure both)")
+
+
+def _gain_given(files, gain):
+    """The gain the inputs were converted with and where it came from."""
+    for f in files:
+        if f.meta.get("gain") is not None:
+            return {"value": float(np.mean(f.meta["gain"])), "source": f.meta.get("gain_source")}
+    return {"value": None if gain is None else gain, "source": "given" if gain else None}
+
+
 def calibrate(darks=(), flats=(), reference=None, output=None, *, report_path=None,
-              figures=None, gain=None, hdu=None, read_noise=None, dq_bits=DEFAULT_DQ_BITS,
-              refpix=None, threshold=30.0, overwrite=False):
+              figures=None, gain=None, bunit=None, hdu=None, read_noise=None,
+              dq_bits=DEFAULT_DQ_BITS, refpix=None, threshold=30.0, folds=5,
+              overwrite=False):
     """Measure a detector's coupling and write its model file.
 
     Parameters
@@ -93,7 +305,10 @@ def calibrate(darks=(), flats=(), reference=None, output=None, *, report_path=No
         Dark products: 2-D frames, 3-D stacks or 4-D ramps (each ramp's hot
         pixels are followed group by group).
     flats : sequence of str
-        Flat products, one file per illumination level (>= 2 frames each).
+        Flat products: ramps (the main input: a 4-D SCI, or a 3-D cube of
+        reads whose mean rises; ramps of one illumination are measured
+        together as integrations) or frames at one level (one file per
+        level, >= 2 frames each).
     reference : str, optional
         A JWST ``ipc`` (FITS) or Roman IPC (ASDF) reference file.
     output : str, optional
@@ -101,15 +316,21 @@ def calibrate(darks=(), flats=(), reference=None, output=None, *, report_path=No
     report_path, figures : str, optional
         The report (JSON) and a folder for figures.
     gain : float or str, optional
-        e-/DN for inputs in DN (default: each file's GAIN keyword).
+        e-/DN for inputs in DN (default: each file's GAIN keyword). A file
+        without BUNIT is taken as DN when a gain is known (said).
+    bunit : str, optional
+        Units of the inputs, overriding their BUNIT.
     hdu : optional
         Science HDU of the FITS inputs.
     read_noise : float, optional
-        [e-] per read; default: measured on the darks, else 0 (said in the report).
+        [e-] per read; default: measured on the darks (or by the flat ramps'
+        fit), else 0 (said in the report).
     dq_bits, refpix :
         Pixels left out (see :mod:`.inputs`).
     threshold : float
         Hot-pixel detection level in robust standard deviations.
+    folds : int
+        Folds of the held-out law choice (:func:`.lawfit.choose_law`).
     overwrite : bool
 
     Returns
@@ -123,23 +344,35 @@ def calibrate(darks=(), flats=(), reference=None, output=None, *, report_path=No
     for path in (output, report_path):  # fail before measuring
         if path is not None:
             check_output_path(path, overwrite)
-    dark_frames = [read_frames(p, hdu, gain, dq_bits, refpix) for p in darks]
-    flat_frames = [read_frames(p, hdu, gain, dq_bits, refpix) for p in flats]
+    options = {"hdu": hdu, "gain": gain, "dq_bits": dq_bits, "refpix": refpix, "bunit": bunit}
+    dark_frames = [read_frames(p, role="dark", **options) for p in darks]
+    flat_frames = [read_frames(p, role="flat", **options) for p in flats]
     _check_shapes(dark_frames + flat_frames)
-    not_measured = []
-    hot_rows, rn_darks, found = _measure_darks(dark_frames, threshold, not_measured)
-    rn = read_noise if read_noise is not None else rn_darks
-    flat_rows = _measure_flats(flat_frames, rn, not_measured)
-    growth = flatmod.growth_with_signal(flat_rows)
+    not_measured, notes = [], []
+    hot = _HotPixels(dark_frames, threshold, not_measured)
+    rn = read_noise if read_noise is not None else hot.read_noise
+    flat = _Flats(flat_frames, rn, not_measured, notes) if flat_frames else None
+    effects = _effects(flat, hot, _gain_given(dark_frames + flat_frames, gain))
+    bf_likely = _frames_rise_like_bf(flat, hot)
+    if bf_likely:
+        effects["brighter_fatter"].update(likely=True, note=bf_likely)
+    use_frames = bf_likely is None
     ref = None
     if reference is not None:
         law_ref, geo_ref, info = reffiles.read_reference(reference)
         ref = {"file": reference, "law": law_ref.describe(), "geometry": geo_ref.describe(),
                **info}
-    fit = None
-    if hot_rows or any(r.get("terms") for r in flat_rows):
+
+    k = hot.folds(folds)
+
+    def points_for(fold_list):
+        return (hot.rows_for(fold_list, k),
+                flat.rows_for(fold_list, k, use_frames) if flat else [])
+
+    fit, transfer_check = None, None
+    if any(points_for(None)):
         try:
-            geometry, law, fit = lawfit.fit_law(hot_rows, flat_rows)
+            geometry, law, fit = lawfit.choose_law(points_for, folds=k)
         except ValueError as exc:
             not_measured.append(str(exc))
     if fit is None:
@@ -149,31 +382,87 @@ def calibrate(darks=(), flats=(), reference=None, output=None, *, report_path=No
         law, geometry = law_ref, geo_ref
         fit = {"chosen": "reference file", "law": law.describe(), "assumed": [
             "the reference file's constant kernel (no signal dependence)"]}
+    elif hot.integrations:
+        transfer_check = transfer.held_out_residuals(hot.integrations, hot.events, hot.bins,
+                                                     points_for(None)[1], fit["chosen"])
     model = CouplingModel.resolve(law, geometry, "zero")
+    nl_ipc = _nonlinear_ipc(fit, effects.pop("flat_ramp_nonlinear_ipc"))
     provenance = {"software": f"ipc_taichi {__version__}", "command": "calibrate",
-                  "date": datetime.datetime.now(datetime.UTC).isoformat(
-                      timespec="seconds"),
+                  "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
                   "darks": [f.label for f in dark_frames], "flats": [f.label for f in flat_frames],
                   "reference": reference,
                   "units": sorted({f.units for f in dark_frames + flat_frames}),
-                  "gain": gain, "read_noise_e": rn,
+                  "gain": effects["gain"]["given"], "read_noise_e": rn,
                   "read_noise_source": ("given" if read_noise is not None else
-                                        "darks" if rn_darks is not None else "unknown (0)")}
+                                        "darks" if hot.read_noise is not None else "unknown (0)")}
     summary = {k: fit.get(k) for k in ("chosen", "law", "weights", "weight_errors", "assumed",
-                                       "notes", "chi2_per_point", "n_points")}
-    if "forms" in fit:
-        summary["bic"] = {k: v.get("bic") for k, v in fit["forms"].items()}
+                                       "held_outside", "notes", "chi2_per_point", "n_points")}
+    summary["law_choice"] = fit.get("law_choice")
     summary["not_measured"] = not_measured
-    document = {"provenance": provenance, "model": model.describe(), "fit": fit,
-                "hot_pixels": {"found": found, "bins": hot_rows},
-                "flats": {"levels": [{k: v for k, v in r.items()} for r in flat_rows],
-                          "growth_with_signal": growth},
-                "reference": ref, "not_measured": not_measured}
+    document = {"provenance": provenance, "model": model.describe(),
+                "inputs": [_input_record(f, role) for role, files in
+                           (("dark", dark_frames), ("flat", flat_frames)) for f in files],
+                **effects, "nonlinear_ipc": nl_ipc, "law_choice": fit.get("law_choice"),
+                "transfer": transfer_check, "fit": fit,
+                "hot_pixels": {"found": hot.found, "bins": hot.rows},
+                "flats": {"levels": flat.rows if flat else [],
+                          "ramps": [{"files": label, **m} for label, m in flat.measured]
+                          if flat else [],
+                          "growth_with_signal": flatmod.growth_with_signal(
+                              flat.frame_rows) if flat else {}},
+                "reference": ref, "not_measured": not_measured, "notes": notes}
     if output is not None:
         model.save(output, provenance=provenance, fit=report.json_ready(summary),
-                   overwrite=overwrite)
+                   overwrite=overwrite, sections=report.json_ready(_sections(effects, fit)))
     if report_path is not None:
         report.write_report(document, report_path, overwrite=overwrite)
     if figures is not None:
-        document["figures"] = report.write_figures(figures, hot_rows, flat_rows, law, geometry)
+        document["figures"] = report.write_figures(figures, document, law, geometry)
     return {"model": model, "report": document, "output": output}
+
+
+def _nonlinear_ipc(fit, ramp_evidence):
+    """Non-linear IPC is claimed only when held-out data choose a law richer
+    than a constant (with brighter-fatter already removed from flat ramps)."""
+    choice = fit.get("law_choice") or {}
+    chosen = fit.get("chosen")
+    detected = bool(choice) and chosen != "constant"
+    margin = (choice.get("margin_against_constant") or {}).get(chosen) if detected else None
+    if not choice:
+        note = "not tested (no measured points)"
+    elif detected:
+        note = (f"the law {chosen} predicts held-out data better than a constant by "
+                f"{margin:.1f} standard errors")
+    else:
+        note = "a constant predicts held-out data as well as any signal-dependent law"
+    return {"detected": detected, "significance": margin, "note": note,
+            "flat_ramps": ramp_evidence}
+
+
+def _sections(effects, fit):
+    """The model file's named sections (never used by ``decouple``)."""
+    out = {}
+    bf = effects["brighter_fatter"]
+    if bf.get("measured") and bf.get("kernel") is not None:
+        out["brighter_fatter"] = {"kernel": bf["kernel"], "kernel_error": bf["kernel_error"],
+                                  "detected": bf.get("detected"), "units": "1/electron",
+                                  "convention": "pixel area 1 + sum_d a(d) Q(p+d); "
+                                                "kernel[2+dy][2+dx]"}
+    nl = effects["classical_nonlinearity"]
+    if nl.get("measured"):
+        out["classical_nonlinearity"] = {"beta": nl["beta"], "error": nl["error"],
+                                         "detected": nl.get("detected"), "units": "1/electron",
+                                         "form": "M = Q - beta Q^2"}
+    if fit.get("band"):
+        out["law_band"] = {**fit["band"], "method": "delete-a-fold jackknife of the chosen "
+                           "form fitted without each fold; 1 sigma",
+                           "held_outside": fit.get("held_outside")}
+    if effects["gain"].get("measured") is not None:
+        out["gain"] = effects["gain"]
+    return out
+
+
+def _input_record(f, role):
+    return {"file": f.label, "role": role, "layout": f.meta.get("layout"),
+            "layout_reason": f.meta.get("layout_reason"), "units": f.units,
+            "units_note": f.meta.get("units_note"), "shape": list(f.data.shape)}

@@ -11,13 +11,19 @@ def add_parser(sub):
     p = sub.add_parser(
         "calibrate", help="measure this detector's coupling: darks/flats/reference -> MODEL.json",
         description="Measure alpha(S,0) per direction from isolated hot pixels in darks and "
-                    "ramps (followed group by group), alpha(S,S) per axis from flat-field "
-                    "covariances, fit a symmetric law chosen by evidence (BIC), and write a "
-                    "coupling-model file for --model (format: docs/calibrate.md).")
+                    "ramps (followed group by group); from flat ramps separate the gain, "
+                    "classical non-linearity, brighter-fatter and IPC (alpha(S,S) with "
+                    "brighter-fatter removed); fit a symmetric law chosen by held-out "
+                    "evidence (a constant unless the data demand more); check it on held-out "
+                    "hot pixels; write a coupling-model file for --model (IPC only; the "
+                    "brighter-fatter kernel and non-linearity as named sections). "
+                    "docs/calibrate.md.")
     p.add_argument("--darks", nargs="+", default=[], metavar="FILE",
                    help="dark products: 2-D frames, 3-D stacks or 4-D ramps (FITS or ASDF)")
     p.add_argument("--flats", nargs="+", default=[], metavar="FILE",
-                   help="flat products, one file per illumination level, >= 2 frames each")
+                   help="flat ramps (4-D SCI, or one ramp of rising reads per file; ramps "
+                        "of one illumination are combined), or frames at one level per file "
+                        "(>= 2 frames each; these cannot separate brighter-fatter)")
     p.add_argument("--reference", metavar="FILE",
                    help="a JWST 'ipc' reference (FITS, inverse kernel) or Roman IPC reference "
                         "(ASDF, forward kernel)")
@@ -27,6 +33,9 @@ def add_parser(sub):
     p.add_argument("--figures", metavar="DIR", help="write the measured-vs-law figures here")
     p.add_argument("--gain", default=None, help="e-/DN for inputs in DN (a number or a gain "
                                                 "image .fits; default: the GAIN keyword)")
+    p.add_argument("--bunit", default=None,
+                   help="units of the inputs, overriding BUNIT (e.g. DN, electron); a file "
+                        "without BUNIT is DN when a gain is known, else electrons (said)")
     p.add_argument("--hdu", default=None, help="science HDU of the FITS inputs (default SCI)")
     p.add_argument("--read-noise", type=float, default=None,
                    help="read noise per read [e-] (default: measured on the darks)")
@@ -35,6 +44,8 @@ def add_parser(sub):
     p.add_argument("--refpix", type=int, default=None, help="reference border width (pixels)")
     p.add_argument("--threshold", type=float, default=30.0,
                    help="hot-pixel detection level in robust sigmas (default 30)")
+    p.add_argument("--folds", type=int, default=5,
+                   help="folds of the held-out law choice (default 5)")
     p.add_argument("--overwrite", action="store_true", help="replace existing outputs")
     add_quiet_argument(p, "summary lines")
     p.set_defaults(run=run_calibrate)
@@ -43,21 +54,18 @@ def add_parser(sub):
 def run_calibrate(args):
     from ..calibrate import calibrate
     from ..calibrate.inputs import DEFAULT_DQ_BITS
+    from ..calibrate.report import summary_lines
+    from ..errors import IPCInputError
 
+    if args.folds < 2:
+        raise IPCInputError(f"--folds must be >= 2, got {args.folds}")
     result = calibrate(args.darks, args.flats, args.reference, args.output,
                        report_path=args.report, figures=args.figures, gain=args.gain,
-                       hdu=args.hdu, read_noise=args.read_noise,
+                       bunit=args.bunit, hdu=args.hdu, read_noise=args.read_noise,
                        dq_bits=args.dq_bits or DEFAULT_DQ_BITS, refpix=args.refpix,
-                       threshold=args.threshold, overwrite=args.overwrite)
+                       threshold=args.threshold, folds=args.folds, overwrite=args.overwrite)
     if not args.quiet:
-        rep = result["report"]
-        print(f"calibrate: {result['model'].describe()}", file=sys.stderr)
-        print(f"calibrate: law chosen: {rep['fit'].get('chosen')}; hot pixels found: "
-              f"{rep['hot_pixels']['found']}; flat levels: {len(rep['flats']['levels'])}",
-              file=sys.stderr)
-        for line in rep["not_measured"]:
-            print(f"calibrate: not measured: {line}", file=sys.stderr)
-        for line in (rep["fit"].get("assumed") or []):
-            print(f"calibrate: assumed: {line}", file=sys.stderr)
+        for line in summary_lines(result["report"], result["model"]):
+            print(f"calibrate: {line}", file=sys.stderr)
         print(f"calibrate: wrote {args.output}", file=sys.stderr)
     return 0

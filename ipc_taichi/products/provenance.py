@@ -7,8 +7,9 @@ One place for the record written into FITS headers and Roman ``meta``:
   ``IPCEDGER``, why that edge rule), ``IPCNHDU`` (science HDUs changed),
   ``IPCHDU`` (the first, by index and name), ``IPCDQBIT``, ``IPCPED`` (the
   pedestal), ``IPCCOADD``, ``IPCARCH``, ``IPCPREC``, and for decouple
-  ``IPCITER``, ``IPCCONV``, ``IPCTOL``, ``IPCMAXIT``; HISTORY lines (the
-  model, each HDU's units, one line per frame);
+  ``IPCITER``, ``IPCCONV``, ``IPCTOL``, ``IPCMAXIT``, ``IPCREMOV`` (what
+  was removed: IPC only); HISTORY lines (the model, what was removed, each
+  HDU's units, one line per frame);
 - each changed science HDU holds its own: ``IPCOP``, ``IPCHDU``,
   ``IPCREFPX`` (the science region as a 1-based FITS section
   ``[x1:x2,y1:y2]``), ``IPCTIME`` (seconds; 0 when not a rate), and for
@@ -28,6 +29,11 @@ from .. import __version__
 __all__ = ["Provenance", "status", "section"]
 
 PENDING = "PENDING"
+
+REMOVED_SHORT = "IPC only"
+REMOVED = "removed: IPC only; brighter-fatter, non-linearity not corrected"
+"""What decouple removes, said in every product it writes: a model file's
+brighter-fatter and non-linearity sections are never applied."""
 
 
 def _now():
@@ -122,6 +128,7 @@ class Provenance:
                 "IPCCONV": (self._converged(every), "stopping rule met (all frames)"),
                 "IPCTOL": (self.tol, "stop: max|dS| <= TOL*max|S|"),
                 "IPCMAXIT": (self.max_iter, "iteration limit"),
+                "IPCREMOV": (REMOVED_SHORT, "removed only IPC: not BF, not non-linearity"),
             })
         for key, value in cards.items():
             header[key] = value
@@ -148,6 +155,7 @@ class Provenance:
         how = f" (tiles {self.tile})" if self.tile else ""
         lines = [f"{self.started} ipc_taichi {__version__} {self.operation}{how}",
                  f"model: {self.model.describe()}; edge: {self.edge_reason}",
+                 *([REMOVED] if self.operation == "decouple" else []),
                  f"pedestal: {self.pedestal_text}; coadds: {self.coadds}"]
         for index, h in self.hdus.items():
             lines.append(f"HDU {index} {h['name']}: units {h['units']}")
@@ -172,7 +180,8 @@ class Provenance:
                "arch": self.arch or "", "precision": self.precision or ""}
         if self.operation == "decouple":
             infos = self.infos[index]
-            out.update(S_IPC=self.status(), iterations=[int(i.iterations) for i in infos],
+            out.update(removed=REMOVED, S_IPC=self.status(),
+                       iterations=[int(i.iterations) for i in infos],
                        converged=self._converged(infos), tol=float(self.tol),
                        max_iter=int(self.max_iter))
         return out
