@@ -221,7 +221,7 @@ def _clipped(values, nsigma=3.0, rounds=5):
 
 
 def summarise_events(events, bins=None, min_signal=200.0, per_decade=6, min_count=10,
-                     max_fraction=0.1):
+                     max_fraction=0.1, min_pixels=5):
     """alpha(S, 0) per direction in logarithmic signal bins, hot pixels as the unit.
 
     Parameters
@@ -238,6 +238,8 @@ def summarise_events(events, bins=None, min_signal=200.0, per_decade=6, min_coun
     min_count : int
         Bins with fewer measurements are merged (default bins) or left out;
         a bin also needs 3 pixels for an error from their scatter.
+    min_pixels : int
+        Default bins are merged until each holds this many hot pixels.
     max_fraction : float
         A measurement where any pixel of the box other than the centre holds
         more than this fraction of the total (either sign) is not coupling (a
@@ -261,7 +263,8 @@ def summarise_events(events, bins=None, min_signal=200.0, per_decade=6, min_coun
             return []
         hi = float(s[use].max()) * 1.0001
         n_bins = max(1, int(np.ceil(per_decade * np.log10(hi / min_signal))))
-        bins = _merge_sparse(np.geomspace(min_signal, hi, n_bins + 1), s[use], min_count)
+        bins = _merge_sparse(np.geomspace(min_signal, hi, n_bins + 1), s[use], pixel[use],
+                             min_count, min_pixels)
     bins = np.asarray(bins, np.float64)
     rows = []
     for lo, hi in zip(bins[:-1], bins[1:]):
@@ -280,6 +283,22 @@ def summarise_events(events, bins=None, min_signal=200.0, per_decade=6, min_coun
                       for c in (cols[:half], cols[half:])]
             row[name] = {"value": value, "error": err, "n": kept, "halves": halves}
         rows.append(row)
+    return _pooled_floor(rows)
+
+
+def _pooled_floor(rows):
+    """Each bin's error at least the pooled pixel-to-pixel scatter over
+    sqrt(its pixels): a scatter of 3-5 pixels that comes out small by chance
+    would otherwise give one bin most of the weight."""
+    for name in DIRECTIONS:
+        spread = [r[name]["error"] * np.sqrt(r[name]["n"]) for r in rows
+                  if np.isfinite(r[name]["error"]) and r[name]["n"] > 1]
+        if not spread:
+            continue
+        pooled = float(np.median(spread))
+        for r in rows:
+            if r[name]["n"] > 0:
+                r[name]["error"] = max(r[name]["error"], pooled / np.sqrt(r[name]["n"]))
     return rows
 
 
@@ -308,14 +327,15 @@ def nn_fraction(events):
     return (frac[:, 1, 2] + frac[:, 3, 2] + frac[:, 2, 1] + frac[:, 2, 3]) / 4.0
 
 
-def _merge_sparse(edges, values, min_count):
-    """Merge neighbouring bins until each holds >= ``min_count`` values (a few
-    hot pixels give a few wide bins rather than many with meaningless errors)."""
+def _merge_sparse(edges, values, pixels, min_count, min_pixels):
+    """Merge neighbouring bins until each holds >= ``min_count`` values from
+    >= ``min_pixels`` hot pixels (a few hot pixels give a few wide bins
+    rather than many with meaningless errors)."""
     edges = list(edges)
     k = 0
     while k < len(edges) - 1 and len(edges) > 2:
-        n = np.sum((values >= edges[k]) & (values < edges[k + 1]))
-        if n >= min_count:
+        inside = (values >= edges[k]) & (values < edges[k + 1])
+        if inside.sum() >= min_count and np.unique(pixels[inside]).size >= min_pixels:
             k += 1
         elif k + 2 < len(edges):
             del edges[k + 1]  # join with the next bin

@@ -112,13 +112,15 @@ def _nn_alpha(points, weights):
 
 
 class SmoothLaw:
-    """``alpha(S,N) = (1-t) d((S+N)/2) + t h(S+N)``, ``t = |S-N|/(S+N)``, with ``h``
-    and ``d`` polynomials in ``log10`` of the signal, held constant outside
-    their ranges. ``h`` or ``d`` may be None (then the other is used for both,
-    as a function of ``S + N``)."""
+    """``alpha(S,N) = (1-t) d((S+N)/2) + t h(S+N) + c t``, ``t = |S-N|/(S+N)``,
+    with ``h`` and ``d`` polynomials in ``log10`` of the signal, held constant
+    outside their ranges. ``h`` or ``d`` may be None (then the other is used
+    for both, as a function of ``S + N``); ``c`` is ``asymmetry`` (0 but in
+    the ``total`` forms)."""
 
-    def __init__(self, h=None, d=None, h_range=None, d_range=None):
+    def __init__(self, h=None, d=None, h_range=None, d_range=None, asymmetry=0.0):
         self.h, self.d, self.h_range, self.d_range = h, d, h_range, d_range
+        self.asymmetry = float(asymmetry)
 
     @staticmethod
     def _poly(coef, rng, s):
@@ -140,7 +142,7 @@ class SmoothLaw:
         n = np.maximum(np.asarray(n, float), 0.0)
         total = s + n
         t = np.where(total > 0, np.abs(s - n) / np.where(total > 0, total, 1.0), 0.0)
-        return (1 - t) * self.curve_d(0.5 * total) + t * self.curve_h(total)
+        return (1 - t) * self.curve_d(0.5 * total) + t * self.curve_h(total) + self.asymmetry * t
 
 
 def _design(S, deg, rng):
@@ -148,10 +150,20 @@ def _design(S, deg, rng):
     return np.stack([u ** (deg - j) for j in range(deg + 1)], axis=1)
 
 
+def _well_measured(S, E, sel):
+    """Signal range of the points of ``sel`` whose errors are within 3x their
+    median: a curve is held constant beyond it (one noisy point at the end
+    of the range must not bend a polynomial)."""
+    if not sel.any():
+        return None
+    well = sel & (E <= 3.0 * np.median(E[sel]))
+    return (max(float(S[well].min()), 1.0), float(S[well].max()))
+
+
 def _fit_smooth(S, N, A, E, src, dh, dd):
     hot, flat = src == "hot", src == "flat"
-    h_range = (max(S[hot].min(), 1.0), S[hot].max()) if hot.any() else None
-    d_range = (max(S[flat].min(), 1.0), S[flat].max()) if flat.any() else None
+    h_range = _well_measured(S, E, hot)
+    d_range = _well_measured(S, E, flat)
     total = S + N
     t = np.where(total > 0, np.abs(S - N) / total, 0.0)
     cols = []
@@ -176,6 +188,25 @@ def _fit_smooth(S, N, A, E, src, dh, dd):
                                               "d_coefficients": coef[nh:].tolist(),
                                               "h_range": h_range, "d_range": d_range,
                                               "coefficient_errors": np.sqrt(np.diag(cov)).tolist()}
+
+
+def _fit_total(S, N, A, E, degree):
+    """The ``total(deg)`` form: ``alpha = P(S + N) + c t``, a polynomial of
+    degree ``deg`` in ``log10(S + N)`` plus a constant step between the
+    diagonal (``t = 0``) and the edge (``t = 1``): the coupling of a pair set
+    by its total charge. Both cross-sections then constrain one curve."""
+    total = S + N
+    t = np.where(total > 0, np.abs(S - N) / total, 0.0)
+    rng = _well_measured(total, E, np.ones(S.size, bool))
+    X = np.concatenate([_design(total, degree, rng), t[:, None]], axis=1) / E[:, None]
+    coef, *_ = np.linalg.lstsq(X, A / E, rcond=None)
+    cov = np.linalg.pinv(X.T @ X)
+    law = SmoothLaw(coef[:-1], None, rng, None, asymmetry=coef[-1])
+    Xraw = X * E[:, None]
+    model_err = np.sqrt(np.clip(np.einsum("ij,jk,ik->i", Xraw, cov, Xraw), 0, None))
+    return law, coef.size, law(S, N), model_err, {
+        "total_coefficients": coef[:-1].tolist(), "asymmetry": float(coef[-1]),
+        "total_range": rng, "coefficient_errors": np.sqrt(np.diag(cov)).tolist()}
 
 
 def _fit_donlon(S, N, A, E):
@@ -233,6 +264,11 @@ MARGIN = 2.0
 standard errors of the difference (:func:`choose_law`)."""
 
 
+FEW_FOLDS = 5
+"""Below this many scored folds the held-out comparison also uses the
+scatter over points (:meth:`_HeldOut.margin`)."""
+
+
 def _held(func, lo, hi):
     """``func`` held outside ``lo <= S + N <= hi``: the arguments are scaled
     along their ray so their sum is clipped into the range (the law is not
@@ -247,17 +283,28 @@ def _held(func, lo, hi):
     return held
 
 
-def _monotone(func, S, N, src):
-    """Whether each measured cross-section of ``func`` is monotone over its measured range."""
+SCORED_ONLY = "donlon2018_free"
+"""Forms fitted and scored beside the others but never chosen: the paper's
+family fixes the law between the two measured cross-sections by the paper's
+own invented shape, where the ``smooth`` forms make one stated assumption
+(linear in the asymmetry ``t``)."""
+
+def _monotone(func, S, N, E, src):
+    """Whether each measured cross-section of ``func`` is monotone where it is
+    well measured (points with errors within 3x the median): a turn back
+    smaller than the median error there, or one that follows a single point
+    of large error at the end of the range, is not a wiggle the data demand."""
     for kind in ("hot", "flat"):
         sel = src == kind
         if not sel.any():
             continue
-        grid = np.geomspace(max(S[sel].min(), 1.0), max(S[sel].max(), 2.0), 64)
+        well = sel & (E <= 3.0 * np.median(E[sel]))
+        grid = np.geomspace(max(S[well].min(), 1.0), max(S[well].max(), 2.0), 64)
         neighbour = np.full_like(grid, float(np.median(N[sel]))) if kind == "hot" else grid
-        d = np.diff(np.asarray(func(grid, neighbour), float))
-        tol = 1e-9 * max(float(np.max(np.abs(func(grid, neighbour)))), 1e-12)
-        if not (np.all(d >= -tol) or np.all(d <= tol)):
+        f = np.asarray(func(grid, neighbour), float)
+        trend = f if f[-1] >= f[0] else -f
+        turned_back = float(np.max(np.maximum.accumulate(trend) - trend))
+        if turned_back > float(np.median(E[well])):
             return False
     return True
 
@@ -299,46 +346,65 @@ def fit_forms(hot_rows, flat_rows, max_degree=3):
                 continue
             forms[f"smooth({dh},{dd})"] = {"k": k, "alpha": law, "model": model,
                                            "model_error": merr, "info": info}
+    if hot and flat:
+        for degree in range(0, max_degree + 1):
+            law, k, model, merr, info = _fit_total(S, N, A, E, degree)
+            if k < n:
+                forms[f"total({degree})"] = {"k": k, "alpha": law, "model": model,
+                                             "model_error": merr, "info": info}
     for form in forms.values():
-        form["monotone"] = _monotone(form["alpha"], S, N, src)
+        form["monotone"] = _monotone(form["alpha"], S, N, E, src)
     return {"weights": weights, "weight_errors": werr, "notes": notes, "S": S, "N": N, "A": A,
             "E": E, "src": src, "forms": forms, "total_range": (lo, hi)}
 
 
-def _held_out_scores(points_for, folds, names):
-    """Per form and fold: chi^2 of the held-out fold's points against the
-    form fitted on the other folds (inf where the form could not be fitted,
-    NaN for every form where the fold held no point)."""
-    scores = {name: np.full(folds, np.nan) for name in names}
-    fits = {name: [] for name in names}
-    counts = np.zeros(folds, int)
-    for f in range(folds):
-        train = fit_forms(*points_for([g for g in range(folds) if g != f]))
-        test_points = _points(*points_for([f]))
-        if train is None or not test_points:
-            continue  # nothing to score in this fold: NaN for every form
-        for name in names:
-            scores[name][f] = np.inf  # unless the form could be fitted
-        S, N, A, E, _ = _nn_alpha(test_points, train["weights"])
-        counts[f] = S.size
-        for name in names:
-            if name in train["forms"]:
-                pred = train["forms"][name]["alpha"](S, N)
-                scores[name][f] = float(np.sum(((A - pred) / E) ** 2))
-                fits[name].append(train["forms"][name]["alpha"])
-    return scores, fits, counts
+class _HeldOut:
+    """Held-out chi^2 of every form: per fold (``folds[name]``, inf where the
+    form could not be fitted, NaN for every form where the fold held no
+    point) and per held-out point (``points[name][f]``)."""
 
+    def __init__(self, points_for, folds, names):
+        self.folds = {name: np.full(folds, np.nan) for name in names}
+        self.points = {name: [None] * folds for name in names}
+        self.fits = {name: [] for name in names}
+        self.counts = np.zeros(folds, int)
+        for f in range(folds):
+            train = fit_forms(*points_for([g for g in range(folds) if g != f]))
+            test_points = _points(*points_for([f]))
+            if train is None or not test_points:
+                continue
+            S, N, A, E, _ = _nn_alpha(test_points, train["weights"])
+            self.counts[f] = S.size
+            for name in names:
+                self.folds[name][f] = np.inf  # unless the form could be fitted
+                if name in train["forms"]:
+                    z2 = ((A - train["forms"][name]["alpha"](S, N)) / E) ** 2
+                    self.folds[name][f] = float(np.sum(z2))
+                    self.points[name][f] = z2
+                    self.fits[name].append(train["forms"][name]["alpha"])
 
-def _beats(a, b):
-    """(margin in standard errors, whether fold scores ``a`` beat ``b`` by :data:`MARGIN`)."""
-    scored = ~np.isnan(a) & ~np.isnan(b)
-    used = scored & np.isfinite(a) & np.isfinite(b)
-    if used.sum() < 2 or not np.isfinite(a[scored]).all():
-        return float("nan"), False
-    d = b[used] - a[used]  # > 0 where a predicts better
-    se = math.sqrt(used.sum() * np.var(d, ddof=1))
-    margin = float(d.sum() / se) if se > 0 else (float("inf") if d.sum() > 0 else 0.0)
-    return margin, margin >= MARGIN
+    def total(self, name):
+        return float(np.nansum(self.folds[name]))
+
+    def margin(self, a, b):
+        """How many standard errors form ``a`` predicts the held-out points
+        better than ``b`` by. The error is the scatter of the difference over
+        folds; with fewer than :data:`FEW_FOLDS` folds that scatter is itself
+        too uncertain, and the larger of it and the scatter over points (each
+        point is held out once) is used."""
+        fa, fb = self.folds[a], self.folds[b]
+        scored = ~np.isnan(fa) & ~np.isnan(fb)
+        if scored.sum() < 2 or not (np.isfinite(fa[scored]).all()
+                                    and np.isfinite(fb[scored]).all()):
+            return float("nan")
+        d_fold = fb[scored] - fa[scored]
+        d_point = np.concatenate([self.points[b][f] - self.points[a][f]
+                                  for f in np.flatnonzero(scored)])
+        se = math.sqrt(d_fold.size * np.var(d_fold, ddof=1))
+        if d_fold.size < FEW_FOLDS and d_point.size > 1:
+            se = max(se, math.sqrt(d_point.size * np.var(d_point, ddof=1)))
+        total = float(d_fold.sum())
+        return total / se if se > 0 else (float("inf") if total > 0 else 0.0)
 
 
 def _band(fits, full_alpha, grid, neighbour):
@@ -368,17 +434,32 @@ def model_of(fitted, name):
     return geometry, smooth_law(form["alpha"], smax, name=f"calibrated:{name}")
 
 
+def _choose(forms, held, margins):
+    """The constant, unless some form predicts held-out points better by
+    :data:`MARGIN` standard errors; then the monotone form that predicts
+    them best (a non-monotone one only if it beats that by :data:`MARGIN`)."""
+    candidates = [n for n, m in margins.items() if m >= MARGIN and not n.startswith(SCORED_ONLY)]
+    if not candidates:
+        return "constant"
+    monotone = [n for n in candidates if forms[n]["monotone"]]
+    best = min(candidates, key=held.total)
+    if monotone:
+        best_monotone = min(monotone, key=held.total)
+        if not held.margin(best, best_monotone) >= MARGIN:
+            best = best_monotone
+    return best
+
+
 def choose_law(points_for, folds=5, max_degree=3):
     """Fit the geometry and every law form; choose by held-out evidence.
 
     Each form is fitted on all folds but one and scored (chi^2) on the fold
-    left out, in turn. A form with more parameters replaces a simpler one
-    only if its held-out chi^2 is lower by :data:`MARGIN` standard errors
-    of the difference (from the scatter over folds); forms whose measured
-    cross-sections are monotone are preferred, and a non-monotone one must
-    beat the best monotone one by the same margin. The constant is the
-    simplest form, so a signal dependence is written only where held-out
-    data demand it.
+    left out, in turn. The constant is kept unless a form predicts the
+    held-out points better by :data:`MARGIN` standard errors of the
+    difference, so a signal dependence is written only where held-out data
+    demand it; then the form that predicts them best is chosen (forms whose
+    measured cross-sections are monotone preferred: a non-monotone one must
+    beat the best monotone one by :data:`MARGIN`).
 
     Parameters
     ----------
@@ -409,35 +490,23 @@ def choose_law(points_for, folds=5, max_degree=3):
                          "usable flat level)")
     S, N, A, E, src = full["S"], full["N"], full["A"], full["E"], full["src"]
     forms = full["forms"]
-    scores, fold_fits, counts = _held_out_scores(points_for, folds, list(forms))
-    order = sorted(forms, key=lambda name: (forms[name]["k"], name))
-    chosen = "constant"
-    margins = {}
-    for name in order[1:]:
-        margins[name], _ = _beats(scores[name], scores["constant"])
-    for monotone_pass in (True, False):
-        for name in order:
-            if forms[name]["monotone"] != monotone_pass or name == chosen:
-                continue
-            better, ok = _beats(scores[name], scores[chosen])
-            if ok and np.nansum(scores[name]) < np.nansum(scores[chosen]):
-                chosen = name
+    held = _HeldOut(points_for, folds, list(forms))
+    margins = {name: held.margin(name, "constant") for name in forms if name != "constant"}
+    chosen = _choose(forms, held, margins)
     form = forms[chosen]
     geometry, law = model_of(full, chosen)
     grid = np.geomspace(max(float(S.min()) * 0.5, 10.0), float(S.max()) * 1.5, 48)
     band = {"signal": grid.tolist()}
     for key, neighbour in (("alpha_s0", 0.0 * grid), ("alpha_ss", grid)):
-        centre, err = _band(fold_fits[chosen], form["alpha"], grid, neighbour)
+        centre, err = _band(held.fits[chosen], form["alpha"], grid, neighbour)
         band[key] = centre.tolist()
         band[key + "_error"] = err.tolist()
-    best_other = min((n for n in forms if n != "constant"),
-                     key=lambda n: np.nansum(scores[n]), default=None)
-    constant_as_well = chosen == "constant" or not _beats(scores[chosen],
-                                                         scores["constant"])[1]
+    best_other = min((n for n in forms if n != "constant"), key=held.total, default=None)
+    constant_as_well = chosen == "constant" or not held.margin(chosen, "constant") >= MARGIN
     choice = {"chosen": chosen, "folds": int(folds), "margin": MARGIN,
-              "held_out_points": counts.tolist(),
-              "held_out": {n: {"score": float(np.nansum(scores[n])),
-                               "per_fold": scores[n].tolist()} for n in forms},
+              "held_out_points": held.counts.tolist(),
+              "held_out": {n: {"score": held.total(n), "per_fold": held.folds[n].tolist()}
+                           for n in forms},
               "margin_against_constant": margins,
               "best_richer_form": best_other,
               "constant_fits_as_well": bool(constant_as_well)}
@@ -445,7 +514,7 @@ def choose_law(points_for, folds=5, max_degree=3):
     for name, f in forms.items():
         chi2 = float(np.sum(((f["model"] - A) / E) ** 2))
         table[name] = {"k": f["k"], "chi2": chi2, "bic": chi2 + f["k"] * math.log(len(S)),
-                       "held_out": float(np.nansum(scores[name])), "monotone": f["monotone"],
+                       "held_out": held.total(name), "monotone": f["monotone"],
                        **f["info"]}
     paper = donlon2018().alpha(S, N)
     table["donlon2018 (the paper's law, not fitted)"] = {

@@ -103,8 +103,15 @@ class _HotPixels:
         if folds is None:
             return self.rows
         keep = np.isin(hotpixels.fold_of(self.events["pixel"], k), list(folds))
-        return hotpixels.summarise_events(hotpixels.select_events(self.events, keep),
+        rows = hotpixels.summarise_events(hotpixels.select_events(self.events, keep),
                                           bins=self.bins, min_count=3)
+        full = {r["signal_range"][0]: r for r in self.rows}
+        out = []
+        for r in rows:
+            ref = full.get(r["signal_range"][0])
+            out.append(_scaled_errors(r, ref, hotpixels.DIRECTIONS, r["n_pixels"],
+                                      ref["n_pixels"] if ref else 1))
+        return out
 
     def slope(self):
         """Weighted slope of the nearest-neighbour alpha(S, 0) per 10 ke- and its significance."""
@@ -164,14 +171,38 @@ class _Flats:
         if folds is None:
             return self.ramp_rows + (self.frame_rows if use_frames else [])
         rows = []
-        for (_label, s), kernel in zip(self.sets, self.kernels):
+        for (label, s), kernel in zip(self.sets, self.kernels):
             blocks = [b for b in range(s.n_blocks) if b % k in folds]
-            if blocks:
-                rows += s.levels(blocks=blocks, bf_kernel=kernel, read_noise=self.read_noise)
+            if not blocks:
+                continue
+            full = [r for r in self.ramp_rows if r["file"] == label]
+            part = s.levels(blocks=blocks, bf_kernel=kernel, read_noise=self.read_noise)
+            rows += [_scaled_errors(r, f, flatmod.TERMS, len(blocks), s.n_blocks,
+                                    nested="terms") for r, f in zip(part, full)]
         if use_frames:
             for f in self.frame_files:
                 rows += _measure_frames([f], self.read_noise, [], stripes=(folds, k))
         return rows
+
+
+def _scaled_errors(row, full, names, n_part, n_full, nested=None):
+    """``row`` (measured on part of the data) with each error replaced by the
+    full data's error scaled by ``sqrt(n_full / n_part)``: the error a part
+    of that size should have. Errors from the scatter of a few pixels or
+    blocks are themselves noisy, and one that comes out far too small would
+    decide a held-out comparison alone."""
+    if full is None or not (row.get(nested) if nested else True):
+        return row
+    scale = np.sqrt(n_full / max(n_part, 1))
+    out = dict(row)
+    src, ref = (row[nested], full[nested]) if nested else (row, full)
+    new = {name: {**src[name], "error": ref[name]["error"] * scale} for name in names
+           if name in src and name in ref}
+    if nested:
+        out[nested] = {**src, **new}
+    else:
+        out.update(new)
+    return out
 
 
 def _by_illumination(files):
@@ -295,7 +326,7 @@ def _gain_given(files, gain):
 
 def calibrate(darks=(), flats=(), reference=None, output=None, *, report_path=None,
               figures=None, gain=None, bunit=None, hdu=None, read_noise=None,
-              dq_bits=DEFAULT_DQ_BITS, refpix=None, threshold=30.0, folds=5,
+              dq_bits=DEFAULT_DQ_BITS, refpix=None, threshold=30.0, folds=10,
               overwrite=False):
     """Measure a detector's coupling and write its model file.
 

@@ -44,8 +44,8 @@ def add_parser(sub):
     p.add_argument("--refpix", type=int, default=None, help="reference border width (pixels)")
     p.add_argument("--threshold", type=float, default=30.0,
                    help="hot-pixel detection level in robust sigmas (default 30)")
-    p.add_argument("--folds", type=int, default=5,
-                   help="folds of the held-out law choice (default 5)")
+    p.add_argument("--folds", type=int, default=10,
+                   help="folds of the held-out law choice (default 10)")
     p.add_argument("--overwrite", action="store_true", help="replace existing outputs")
     add_quiet_argument(p, "summary lines")
     p.set_defaults(run=run_calibrate)
