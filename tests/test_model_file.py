@@ -142,3 +142,36 @@ def test_resolve_defaults_are_the_papers():
         CouplingModel.resolve(model, model=model)
     with pytest.raises(IPCInputError, match="CouplingModel or a model file path"):
         CouplingModel.resolve(model=3.5)
+
+
+def test_sections_round_trip_and_decouple_says_it_removed_ipc_only(cpu, tmp_path):
+    """Version 2: the brighter-fatter kernel and the non-linearity ride beside the law as
+    named sections; decouple uses the law alone and says so in the product."""
+    kernel = np.zeros((5, 5))
+    kernel[2, 1] = kernel[2, 3] = 3.7e-7
+    kernel[1, 2] = kernel[3, 2] = 4.1e-7
+    kernel[2, 2] = -kernel.sum()
+    sections = {"brighter_fatter": {"kernel": kernel, "units": "1/electron"},
+                "classical_nonlinearity": {"beta": 1.5e-6, "form": "M = Q - beta Q^2"}}
+    path = _anisotropic().save(tmp_path / "m.json", sections=sections)
+    back, doc = CouplingModel.load(path, with_document=True)
+    assert doc["version"] == 2
+    assert doc["brighter_fatter"]["kernel"][2][1] == pytest.approx(3.7e-7)
+    assert doc["classical_nonlinearity"]["beta"] == pytest.approx(1.5e-6)
+    with pytest.raises(IPCInputError, match="unknown model-file section"):
+        _anisotropic().save(tmp_path / "n.json", sections={"flat_field": {}})
+    frame = np.full((24, 24), 100.0)
+    frame[12, 12] = 30000.0
+    src = tmp_path / "in.fits"
+    hdu = fits.ImageHDU(frame.astype(np.float32), name="SCI")
+    hdu.header["BUNIT"] = "electron"
+    fits.HDUList([fits.PrimaryHDU(), hdu]).writeto(src)
+    from ipc_taichi.products import decouple_file
+
+    decouple_file(str(src), str(tmp_path / "out.fits"), model=str(path))
+    with fits.open(tmp_path / "out.fits") as out:
+        assert out[0].header["IPCREMOV"] == "IPC only"
+        assert any("brighter-fatter, non-linearity not corrected" in str(h)
+                   for h in out[0].header["HISTORY"])
+        # the law alone was removed: the same as decoupling with the model directly
+        np.testing.assert_allclose(out["SCI"].data, decouple(frame, model=back), rtol=1e-6)
