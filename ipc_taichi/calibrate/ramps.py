@@ -65,9 +65,20 @@ weights of each covariance ``sqrt(n / (C_kk(0) C_ll(0) + C_kl^2))``) gives
 the gain ratio, the read noise, ``k_t0``, ``k_t1`` and ``a``; every error is a
 jackknife over the spatial blocks (each block left out in turn, the mean ramp
 and the fit redone), never a formula. Per-level points (:meth:`FlatRamps.levels`)
-are the covariances of ``D_b = M_b - M_0`` with the brighter-fatter term and
-the read noise removed, solved for the kernel at ``Qbar_b`` exactly as a flat
-at one level (:func:`~ipc_taichi.calibrate.flats.solve_kernel`).
+are covariances with everything but ``(I/r) J*J`` removed (brighter-fatter,
+read noise), solved for the kernel at their level exactly as a flat at one
+level (:func:`~ipc_taichi.calibrate.flats.solve_kernel`): by default the
+same-increment covariances of disjoint windows of increments (independent
+points; brighter-fatter only a few % of them), or the covariances of
+``D_b = M_b - M_0`` (what a flat at ``Qbar_b`` sees; correlated points, and
+at the top of a ramp the brighter-fatter term removed is as large as the
+IPC term).
+
+Simulators that collect each group in a few discrete steps, each at the rate
+set by the charge at its start (solid-waffle's ``SUBSTEPS``), respond less to
+brighter-fatter within a step than a detector: ``collection_steps`` makes the
+model follow them step by step (with 2 steps, the continuous model reads the
+nearest IPC terms ~2 % low on solid-waffle's ramps with its infrared kernel).
 """
 
 import numpy as np
@@ -258,7 +269,10 @@ def _sigma_from_chi2(chi2, dof):
     """Gaussian-equivalent significance of a chi^2 with ``dof`` degrees of freedom."""
     from scipy.stats import chi2 as chi2_dist
 
-    logp = chi2_dist.logsf(max(float(chi2), 0.0), dof)
+    x = max(float(chi2), 0.0)
+    logp = chi2_dist.logsf(x, dof)
+    if not np.isfinite(logp):  # far tail: the leading term of the asymptotic series
+        logp = -x / 2 + (dof / 2 - 1) * np.log(x / 2) - special.gammaln(dof / 2)
     return float(-special.ndtri_exp(logp)) if logp < np.log(0.5) else 0.0
 
 
@@ -502,7 +516,7 @@ class FlatRamps:
                                     "slope_per_10ke": float(1e4 * full["k1"][i]),
                                     "slope_error": _scaled(errors("k1", i), 1e4)}
                                 for i, t in enumerate(TERMS)}}
-        out["nonlinear_ipc"] = _nonlinear_ipc_report(full, jack)
+        out["nonlinear_ipc"] = _nonlinear_ipc_report(full, jack, self.n_integrations)
         out["brighter_fatter"] = _bf_report(full, jack, self.n_integrations)
         variants = {v: self._fits(blocks, read_noise, variant=v)[1] for v in VARIANTS}
         out["params"] = _public_params(full, self.n_groups)
@@ -512,7 +526,7 @@ class FlatRamps:
         out["covariance_curves"] = self._curves(full_data, loo, full, out["variants"])
         return out
 
-    def levels(self, blocks=None, bf_kernel=None, read_noise=None, method="difference"):
+    def levels(self, blocks=None, bf_kernel=None, read_noise=None, method="increments"):
         """Per-level kernels ``alpha(S, S) w(d)`` with brighter-fatter removed.
 
         Parameters
@@ -528,7 +542,7 @@ class FlatRamps:
             is not used).
         read_noise : float, optional
             Read noise per read [e-]; fitted when None.
-        method : {"difference", "increments"}
+        method : {"increments", "difference"}
             ``difference``: for about eight reads ``b`` spread over the ramp, the
             covariance of ``D_b = M_b - M_0`` (from the same sums) minus its
             brighter-fatter term and ``2 sigma^2`` at lag 0, at ``Qbar_b = I b``:
@@ -539,7 +553,8 @@ class FlatRamps:
             increments; each window's same-increment covariances minus their
             brighter-fatter term (``I^2 J*J*a``, a few % of the IPC term) and
             ``2 sigma^2``, at the mean ``Qbar_{k+1}`` of the window: independent
-            points, nearly free of the brighter-fatter model.
+            points, nearly free of the brighter-fatter model (the default: a law
+            fitted to the points may treat them as independent).
 
         Returns
         -------
@@ -842,7 +857,7 @@ def _nonlinearity_report(full, jack, errors, integration_betas):
                     "over blocks and the scatter between integrations"}
 
 
-def _nonlinear_ipc_report(full, jack):
+def _nonlinear_ipc_report(full, jack, nints):
     value = float(full["k1"][0] + full["k1"][1]) * 1e4
     err = None
     if len(jack) >= 3:
@@ -850,7 +865,8 @@ def _nonlinear_ipc_report(full, jack):
     sig = _significance(value, err)
     detected = bool(sig is not None and abs(sig) >= _DETECTION)
     note = (f"slope of the nearest terms x + y: {value:+.3g} per 10 ke-"
-            + ("" if err is None else f" +- {err:.2g}") + ", fitted beside brighter-fatter")
+            + ("" if err is None else f" +- {err:.2g}") + ", fitted beside "
+            + ("brighter-fatter" if nints > 1 else "the common brighter-fatter and pattern term"))
     return {"detected": detected, "significance": sig, "slope_per_10ke": value, "error": err,
             "note": note + (": detected" if detected else ": not detected")}
 
