@@ -231,6 +231,15 @@ def test_fit_recovers_brighter_fatter_ipc_and_nonlinearity(bf_measured):
     assert chi2["brighter_fatter"] < chi2["nonlinear_ipc"] - 0.2
 
 
+def test_subset_of_blocks_and_given_read_noise(bf_measured):
+    flat, m = bf_measured
+    part = flat.measure(blocks=range(8), read_noise=5.0)
+    assert part["n_pixels"] < 0.6 * m["n_pixels"]
+    assert part["read_noise"] == {"value": 5.0, "error": None, "source": "given"}
+    err = [r["brighter_fatter"]["kernel_error"][2][3] for r in (part, m)]
+    assert err[0] > err[1]
+
+
 def test_levels_are_flat_with_brighter_fatter_removed(bf_measured):
     flat, m = bf_measured
     for method in ("difference", "increments"):

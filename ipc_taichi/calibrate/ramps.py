@@ -21,7 +21,7 @@ different moments:
 Noise model (linear response about the flat; no expansion in ``a``). A
 fluctuation ``dQ`` of the collected charge obeys ``d(dQ)/dt = I a * dQ +
 (Poisson noise of rate I)``; in Fourier space each mode ``f`` grows at
-``g(f) = r I a(f)``, so reads ``i <= j`` (times ``T = i, j`` in groups) have
+``g(f) = r I a(f)``, so reads ``i <= j`` (times ``T = i, j`` in groups) have::
 
     S_ij(f) = (I / r) exp(g (T_j - T_i)) (exp(2 g T_i) - 1) / (2 g)
             = (I / r) T_i + I^2 a(f) T_i T_j + O(a^2),
@@ -485,12 +485,21 @@ class FlatRamps:
         Returns
         -------
         dict
-            ``gain_ratio`` {value, error}; ``current``; ``read_noise`` {value,
-            error, source}; ``classical_nonlinearity``; ``brighter_fatter``;
-            ``ipc`` {terms}; ``nonlinear_ipc``; ``chi2_per_dof``; ``n_pixels``;
-            ``covariance_curves``; ``params`` (for :meth:`predict`); ``variants``
-            (each variant refitted: its ``chi2_per_dof`` and ``params``);
-            ``notes``.
+            ``gain_ratio`` {value, error} (true electrons per electron of the
+            data: the measured gain is the assumed one times ``value``);
+            ``current`` [e-/group]; ``read_noise`` {value, error, source} [e-
+            per read]; ``classical_nonlinearity`` {measured, beta, error,
+            significance, detected, form}; ``brighter_fatter`` {measured,
+            detected, significance (nearest terms over their error),
+            kernel, kernel_error (5x5 [2 + dy][2 + dx], 1/e-), chi2, chi2_sigma,
+            note}; ``ipc`` {terms: {term: {value (at zero charge), error,
+            slope_per_10ke, slope_error}}}; ``nonlinear_ipc`` {detected,
+            significance (slope of x + y over its error), slope_per_10ke,
+            error, note}; ``chi2_per_dof``; ``n_pixels``; ``covariance_curves``
+            (same-increment ``C_kk(delta) / (I/r)`` against ``Qbar_{k+1}``:
+            measured with errors and each variant refitted); ``params`` (for
+            :meth:`predict`); ``variants`` (each refitted: ``chi2_per_dof``,
+            ``params``); ``notes``. Detection: significance >= 5.
         """
         blocks = self._block_list(blocks)
         full_data, full, loo, jack = self._fits(blocks, read_noise)
@@ -567,11 +576,12 @@ class FlatRamps:
         if method not in ("difference", "increments"):
             raise IPCInputError(f"method must be 'difference' or 'increments', got {method!r}")
         blocks = self._block_list(blocks)
-        values = None if bf_kernel is None else symmetric_from_kernel(bf_kernel)
+        given = bf_kernel is not None and self.n_integrations > 1
+        values = symmetric_from_kernel(bf_kernel) if given else None
         if values is not None:
             values = values - np.array([values @ _MULT, *np.zeros(8)])  # keep sum a = 0
         full_data, full, loo, jack = self._fits(blocks, read_noise, values)
-        notes = [_level_note(self.n_integrations, bf_kernel is not None)]
+        notes = [_level_note(self.n_integrations, given)]
         n_inc = self.n_groups - 1
         if method == "difference":
             picks = [np.arange(b) for b in np.unique(np.round(
