@@ -1,0 +1,971 @@
+"""Flat ramps: gain, classical non-linearity, IPC and brighter-fatter told apart in time.
+
+A flat ramp is read non-destructively at equally spaced reads ``k = 0 .. G-1``
+(read 0 the first after reset, collected charge ~0 plus an unknown bias); the
+mean collected charge at read ``k`` is ``Qbar_k = I k`` (``I`` [e-/group]).
+Three effects make flat covariances depend on signal, and they act at
+different moments:
+
+- **IPC** (and its signal dependence, non-linear IPC) and **classical
+  non-linearity** act on the charge present *at the read*. On a flat of level
+  ``Q`` the readout's Jacobian is ``J(Q) = (1 - 2 beta Q) K(Q)``, with ``K`` the
+  symmetric 5x5 coupling kernel whose off-centre entries are the five terms
+  ``k_t(Q) = k_t0 + k_t1 Q`` of :data:`~ipc_taichi.calibrate.flats.TERMS` (the
+  ``w(d) alpha(S, S)`` of a flat at ``S = Q``) and whose centre is ``1 - sum``;
+  the measured charge is ``M = Q' - beta Q'^2`` of the coupled charge ``Q'``.
+- **Brighter-fatter** acts *while charge is collected*: pixel ``p`` collects at
+  the rate ``I (1 + sum_d a(d) Q(p + d))`` (``a`` a symmetric 5x5 kernel per
+  electron, ``sum a = 0``, ``a(0, 0) < 0``), so a fluctuation of charge, once
+  collected, keeps steering the later collection of its neighbours.
+
+Noise model (linear response about the flat; no expansion in ``a``). A
+fluctuation ``dQ`` of the collected charge obeys ``d(dQ)/dt = I a * dQ +
+(Poisson noise of rate I)``; in Fourier space each mode ``f`` grows at
+``g(f) = r I a(f)``, so reads ``i <= j`` (times ``T = i, j`` in groups) have::
+
+    S_ij(f) = (I / r) exp(g (T_j - T_i)) (exp(2 g T_i) - 1) / (2 g)
+            = (I / r) T_i + I^2 a(f) T_i T_j + O(a^2),
+    Cov(M_i, M_j)(f) = J_i(f) J_j(f) S_ij(f) + sigma^2 [i = j],
+
+with ``r`` the gain ratio (true electrons per electron of the data: the true
+gain is the assumed one times ``r``) and ``sigma`` the read noise per read.
+The increments ``d_k = M_{k+1} - M_k`` then have the covariance
+``C_kl = C(k+1, l+1) - C(k+1, l) - C(k, l+1) + C(k, l)``, transformed back to
+the nine symmetric lags :data:`SYMMETRIC_LAGS`. To first order this is the
+lead's form: the same increment ``C_kk = (I/r) J_{k+1}*J_{k+1} + I^2
+J*J*a + 2 sigma^2 [lag 0]``, a later one ``C_kl = (I/r) (J_{l+1} - J_l) *
+J_{k+1} + I^2 J*J*a - sigma^2 [lag 0, l = k + 1]``. So brighter-fatter adds
+the same ``I^2 KKa`` to every pair of increments whatever the level,
+non-linear IPC changes the same-increment covariances with the level at a
+fixed interval, and ``beta`` (measured from the curvature of the mean ramp,
+``M_k = c + I k - beta (I k)^2``; IPC and brighter-fatter leave a flat's mean
+alone) enters through ``J``. The model is exact in ``K``, in ``a`` (the
+exponential) and in the differences ``J_{l+1} - J_l``; it neglects the
+second moment of the charge in the non-linear terms (``beta^2 Var(Q)``) and
+charge spreading during collection other than brighter-fatter.
+
+The fixed pattern (pixel response) is cancelled by subtracting, per pixel and
+increment, the mean over integrations (scaled by ``sqrt(n / (n - 1))``); the
+spatial mean of each increment is removed too (illumination changes between
+integrations). With a single integration nothing can be subtracted: a
+pattern ``eps`` of the collection rate adds ``I^2 P`` to every pair of
+increments (``P`` its autocorrelation after the readout), the time structure
+of brighter-fatter, and brighter-fatter acting on the pattern adds
+``I^3 (a*P) (k + l + 1)``. The fit then replaces brighter-fatter by a free
+common term ``A(delta) + B(delta) (k + l + 1)`` for every pair ``k <= l``
+(which also absorbs brighter-fatter itself to first order); IPC and its
+signal dependence stay separate from it (the same-increment covariances
+against the pairs of different increments), brighter-fatter is not measured.
+
+The sufficient statistics are additive: per spatial block, the sums over
+pixels and integrations of ``d_k(p) d_l(p + delta)`` for every pair of
+increments and the 13 lags :data:`LAGS` (one matrix product over the pixel
+axis per lag), with their counts. The joint fit (weighted least squares, the
+weights of each covariance ``sqrt(n / (C_kk(0) C_ll(0) + C_kl^2))``) gives
+the gain ratio, the read noise, ``k_t0``, ``k_t1`` and ``a``; every error is a
+jackknife over the spatial blocks (each block left out in turn, the mean ramp
+and the fit redone), never a formula. Per-level points (:meth:`FlatRamps.levels`)
+are covariances with everything but ``(I/r) J*J`` removed (brighter-fatter,
+read noise), solved for the kernel at their level exactly as a flat at one
+level (:func:`~ipc_taichi.calibrate.flats.solve_kernel`): by default the
+same-increment covariances of disjoint windows of increments (independent
+points; brighter-fatter only a few % of them), or the covariances of
+``D_b = M_b - M_0`` (what a flat at ``Qbar_b`` sees; correlated points, and
+at the top of a ramp the brighter-fatter term removed is as large as the
+IPC term).
+
+Simulators that collect each group in a few discrete steps, each at the rate
+set by the charge at its start (solid-waffle's ``SUBSTEPS``), respond less to
+brighter-fatter within a step than a detector: ``collection_steps`` makes the
+model follow them step by step (with 2 steps, the continuous model reads the
+nearest IPC terms ~2 % low on solid-waffle's ramps with its infrared kernel).
+"""
+
+import numpy as np
+from scipy import special
+from scipy.optimize import least_squares
+
+from ..errors import IPCInputError
+from .flats import TERMS, solve_kernel
+
+__all__ = ["LAGS", "SYMMETRIC_LAGS", "VARIANTS", "FlatRamps", "kernel_from_symmetric",
+           "symmetric_from_kernel"]
+
+LAGS = ((0, 0), (0, 1), (1, 0), (1, 1), (1, -1), (0, 2), (2, 0), (1, 2), (1, -2), (2, 1),
+        (2, -1), (2, 2), (2, -2))
+"""Lags ``(dy, dx)`` of the sums; with both orders of each pair they cover every
+offset of a 5x5 box."""
+
+SYMMETRIC_LAGS = ((0, 0), (0, 1), (1, 0), (1, 1), (0, 2), (2, 0), (1, 2), (2, 1), (2, 2))
+"""The nine lags of a kernel symmetric in ``dy`` and in ``dx``; also the order of
+the symmetric values of a brighter-fatter kernel."""
+
+VARIANTS = ("ipc_only", "nonlinear_ipc", "brighter_fatter", "full")
+"""Model variants: constant IPC; IPC with its signal dependence; constant IPC
+plus brighter-fatter; everything."""
+
+_CLASS = np.array([SYMMETRIC_LAGS.index((abs(dy), abs(dx))) for dy, dx in LAGS])
+_MULT = np.array([(1 if dy == 0 else 2) * (1 if dx == 0 else 2) for dy, dx in SYMMETRIC_LAGS])
+_TERM_CLASS = np.arange(1, 6)  # TERMS x, y, diagonal, second_x, second_y = classes 1..5
+_GRID = 20
+_MARGIN = 2
+_SCALES = {"r": 1.0, "s2": 100.0, "k0": 1e-2, "k1": 1e-6, "a": 1e-6, "common": 10.0}
+_DETECTION = 5.0
+
+
+def kernel_from_symmetric(values):
+    """The 5x5 kernel ``[2 + dy][2 + dx]`` of the nine symmetric values.
+
+    Parameters
+    ----------
+    values : sequence of 9 float
+        Values at :data:`SYMMETRIC_LAGS`.
+
+    Returns
+    -------
+    ndarray, (5, 5)
+    """
+    kernel = np.zeros((5, 5))
+    for v, (dy, dx) in zip(values, SYMMETRIC_LAGS, strict=True):
+        for sy in (-1, 1):
+            for sx in (-1, 1):
+                kernel[2 + sy * dy, 2 + sx * dx] = v
+    return kernel
+
+
+def symmetric_from_kernel(kernel):
+    """The nine symmetric values (averages over the four reflections) of a 5x5 kernel."""
+    k = np.asarray(kernel, dtype=np.float64)
+    if k.shape != (5, 5):
+        raise IPCInputError(f"a brighter-fatter kernel is 5x5, got shape {k.shape}")
+    avg = (k + k[::-1] + k[:, ::-1] + k[::-1, ::-1]) / 4.0
+    return np.array([avg[2 + dy, 2 + dx] for dy, dx in SYMMETRIC_LAGS])
+
+
+def _fourier_basis(n=_GRID):
+    """Modes of a periodic ``n x n`` grid folded by the kernels' symmetry.
+
+    Returns ``basis`` (9, modes): the transform of a unit symmetric value at
+    each class of :data:`SYMMETRIC_LAGS`; ``inverse`` (modes, 9): back to the
+    lags (weights included).
+    """
+    m = np.arange(n // 2 + 1)
+    f = 2 * np.pi * m / n
+    w = np.where((m == 0) | (m == n // 2), 1.0, 2.0)
+    fy, fx = (v.ravel() for v in np.meshgrid(f, f, indexing="ij"))
+    wy, wx = (v.ravel() for v in np.meshgrid(w, w, indexing="ij"))
+    basis = np.empty((9, fy.size))
+    inverse = np.empty((fy.size, 9))
+    for c, (dy, dx) in enumerate(SYMMETRIC_LAGS):
+        cy, cx = np.cos(fy * dy), np.cos(fx * dx)
+        basis[c] = (cy if dy == 0 else 2 * cy) * (cx if dx == 0 else 2 * cx)
+        inverse[:, c] = wy * wx * cy * cx / n ** 2
+    return basis, inverse
+
+
+_BASIS, _INVERSE = _fourier_basis()
+
+
+class _Model:
+    """Covariances of the increments of flat ramps (see the module docstring).
+
+    Parameters: ``r``, ``s2`` (sigma^2 [e-^2]), ``k0`` (5), ``k1`` (5, per e-),
+    ``a`` (9 symmetric values, per e-), ``common`` (one integration only, else
+    None: 18 values [e-^2], ``A`` then ``B`` at the nine lags, the term
+    ``A + B (k + l + 1)`` added to every pair of increments).
+    """
+
+    def __init__(self, n_groups, current, beta, steps=None):
+        self.time = np.arange(n_groups, dtype=np.float64)
+        self.current, self.beta = float(current), float(beta)
+        self.level = self.current * self.time
+        self.steps = steps
+
+    def jacobian(self, p):
+        """``J_i(f)`` (reads, modes)."""
+        k = p["k0"][None, :] + p["k1"][None, :] * self.level[:, None]
+        offcentre = (_MULT[_TERM_CLASS, None] - _BASIS[_TERM_CLASS])
+        kernel = 1.0 - k @ offcentre
+        return (1.0 - 2.0 * self.beta * self.level)[:, None] * kernel
+
+    def collected(self, p, poisson=True):
+        """``S_ij(f)``: covariance of collected charge (reads, reads, modes);
+        ``poisson=False`` keeps only the brighter-fatter part.
+
+        Continuous collection: ``S_ij = (I/r) exp(g dt) expm1(2 g t) / (2 g)``
+        (``t = min(T_i, T_j)``, ``dt = |T_i - T_j|``). In ``steps`` discrete steps
+        per group, each collecting at the rate set by the charge at its start
+        (simulators): the same with ``exp(g)`` replaced by ``(1 + g / steps)^steps``
+        and ``2 g`` by ``steps ((1 + g / steps)^2 - 1)``.
+        """
+        r, cur, t = p["r"], self.current, self.time
+        g = r * cur * (p["a"] @ _BASIS)
+        if self.steps:
+            rate = self.steps * np.log1p(g / self.steps)
+            den = g * (2.0 + g / self.steps)
+        else:
+            rate, den = g, 2.0 * g
+        tmin = np.minimum(t[:, None], t[None, :])[..., None]
+        tdiff = np.abs(t[:, None] - t[None, :])[..., None]
+        x = 2.0 * rate * tmin
+        small = np.abs(rate) < 1e-12
+        growth = np.where(small, tmin, np.expm1(x) / np.where(small, 1.0, den))
+        return (cur / r) * (np.exp(rate * tdiff) * growth - (0.0 if poisson else tmin))
+
+    def reads(self, p):
+        """``Cov(M_i, M_j)(f)`` (reads, reads, modes)."""
+        jac = self.jacobian(p)
+        c = jac[:, None, :] * jac[None, :, :] * self.collected(p)
+        idx = np.arange(self.time.size)
+        c[idx, idx] += p["s2"]
+        return c
+
+    def increments(self, p):
+        """``C_kl(delta)`` (increments, increments, :data:`SYMMETRIC_LAGS`)."""
+        c = self.reads(p)
+        d = (c[1:, 1:] - c[1:, :-1] - c[:-1, 1:] + c[:-1, :-1]) @ _INVERSE
+        if p.get("common") is not None:
+            k = np.arange(d.shape[0], dtype=np.float64)
+            d += p["common"][:9] + (k[:, None] + k[None, :] + 1.0)[..., None] * p["common"][9:]
+        return d
+
+    def excess_of_increments(self, p):
+        """Everything in the same-increment covariances but ``(I/r) J_{k+1}*J_{k+1}``
+        (brighter-fatter or the common term, read noise, ``k (J_{k+1} - J_k)^2``),
+        at the lags (9, increments)."""
+        jac = self.jacobian(p)[1:]
+        ipc = (self.current / p["r"]) * jac ** 2 @ _INVERSE
+        return (np.diagonal(self.increments(p)).T - ipc).T
+
+    def excess_of_difference(self, p, b):
+        """Everything in ``Cov(M_b - M_0)`` but ``(I/r) b J_b*J_b`` (brighter-fatter
+        or the common term, ``2 sigma^2``), at the lags (9,)."""
+        ipc = (self.current / p["r"]) * self.time[b] * self.jacobian(p)[b] ** 2 @ _INVERSE
+        return self.increments(p)[:b, :b].sum(axis=(0, 1)) - ipc
+
+
+def _mean_ramp(increment_sums, n_pixels):
+    """``I`` and ``beta`` from the mean increments ``I - beta I^2 (2k + 1)``.
+
+    ``increment_sums`` (..., increments) summed over ``n_pixels`` pixels.
+    """
+    mean = increment_sums / n_pixels
+    k = np.arange(mean.shape[-1], dtype=np.float64)
+    design = np.stack([np.ones_like(k), 2 * k + 1], axis=1)
+    coef = np.linalg.lstsq(design, mean.T if mean.ndim > 1 else mean, rcond=None)[0]
+    current = coef[0]
+    return current, -coef[1] / current ** 2
+
+
+def _jackknife(samples):
+    """Jackknife covariance of leave-one-out estimates (samples, ...)."""
+    s = np.asarray(samples, dtype=np.float64)
+    n = s.shape[0]
+    dev = (s - s.mean(axis=0)).reshape(n, -1)
+    return (n - 1.0) / n * dev.T @ dev
+
+
+def _sigma_from_chi2(chi2, dof):
+    """Gaussian-equivalent significance of a chi^2 with ``dof`` degrees of freedom."""
+    from scipy.stats import chi2 as chi2_dist
+
+    x = max(float(chi2), 0.0)
+    logp = chi2_dist.logsf(x, dof)
+    if not np.isfinite(logp):  # far tail: the leading term of the asymptotic series
+        logp = -x / 2 + (dof / 2 - 1) * np.log(x / 2) - special.gammaln(dof / 2)
+    return float(-special.ndtri_exp(logp)) if logp < np.log(0.5) else 0.0
+
+
+class FlatRamps:
+    """Sufficient statistics of flat ramps at one illumination (per spatial block).
+
+    Build with :meth:`from_ramps`; :meth:`measure` fits gain ratio, read
+    noise, classical non-linearity, IPC (constant and signal-dependent) and
+    brighter-fatter jointly; :meth:`levels` gives per-level kernels with
+    brighter-fatter removed; :meth:`predict` gives model curves for figures.
+
+    Attributes
+    ----------
+    n_blocks : int
+        Number of spatial blocks.
+    n_integrations : int
+        Integrations (ramps) combined.
+    n_groups : int
+        Reads used per ramp (those below the saturation level).
+    current : float
+        ``I``, mean collected charge per group [e-/group], from the mean ramp.
+    notes : list of str
+        What was dropped or assumed while reading.
+    """
+
+    def __init__(self, sums, counts, increment_sums, n_pixels, n_integrations, notes=(),
+                 collection_steps=None):
+        self._sums = np.asarray(sums, dtype=np.float64)
+        self._counts = np.asarray(counts, dtype=np.float64)
+        self._increments = np.asarray(increment_sums, dtype=np.float64)
+        self._pixels = np.asarray(n_pixels, dtype=np.float64)
+        self.n_blocks = int(self._sums.shape[0])
+        self.n_integrations = int(n_integrations)
+        self.n_groups = int(self._sums.shape[-1]) + 1
+        self.notes = list(notes)
+        self.collection_steps = None if not collection_steps else int(collection_steps)
+        current, _ = _mean_ramp(self._increments.sum(axis=(0, 1)),
+                                self._pixels.sum() * self.n_integrations)
+        self.current = float(current)
+        self._cache = {}
+
+    # ------------------------------------------------------------------ reading
+    @classmethod
+    def from_ramps(cls, ramps, mask=None, *, border=2, blocks=(4, 4), saturation=None,
+                   collection_steps=None):
+        """Sums of products of increments of flat ramps, per spatial block.
+
+        Parameters
+        ----------
+        ramps : ndarray, (nints, ngroups, ny, nx)
+            Flat ramps at one illumination [e-, with the assumed gain]; a 3-D
+            cube is one integration.
+        mask : ndarray of bool, same shape or (ny, nx), optional
+            True where a read is bad. A pixel masked (or non-finite) in any used
+            read is left out of every product it touches.
+        border : int
+            Pixels dropped at each frame edge.
+        blocks : (int, int)
+            Spatial blocks (rows, columns) for the jackknife.
+        saturation : float, optional
+            Level [e-, as in ``ramps``] at or above which a read is not used:
+            reads are used up to the last one where at most 1 % of the pixels
+            reach it; a pixel reaching it in a used read is left out.
+        collection_steps : int, optional
+            None (default): charge is collected continuously (a detector).
+            An integer: the ramps come from a simulator that collects each group
+            in that many discrete steps, each at the rate set by the charge at its
+            start (solid-waffle's ``SUBSTEPS``); the brighter-fatter response is
+            then modelled step by step.
+
+        Returns
+        -------
+        FlatRamps
+        """
+        data = np.asarray(ramps)
+        if data.ndim == 3:
+            data = data[None]
+        if data.ndim != 4:
+            raise IPCInputError(f"flat ramps are (nints, ngroups, ny, nx), got {data.shape}")
+        nints, ngroups, ny, nx = data.shape
+        good, used, finite, notes = _usable(data, mask, border, saturation)
+        if used < 4:
+            raise IPCInputError(f"flat ramps: only {used} usable reads (at least 4 are needed "
+                                "for the mean-ramp curvature and the time structure)")
+        if good.sum() < 25 * blocks[0] * blocks[1]:
+            raise IPCInputError(f"flat ramps: only {int(good.sum())} usable pixels for "
+                                f"{blocks[0]}x{blocks[1]} blocks")
+        rows = np.linspace(0, ny, blocks[0] + 1).round().astype(int)
+        cols = np.linspace(0, nx, blocks[1] + 1).round().astype(int)
+        edges = [(rows[i], rows[i + 1], cols[j], cols[j + 1])
+                 for i in range(blocks[0]) for j in range(blocks[1])]
+        inc_sums = np.diff([_block_read_sums(data, good, e, used, finite) for e in edges],
+                           axis=2)
+        n_pixels = np.array([good[y0:y1, x0:x1].sum() for y0, y1, x0, x1 in edges])
+        mean_inc = inc_sums.sum(axis=0) / n_pixels.sum()  # (nints, increments)
+        offset = mean_inc - mean_inc.mean(axis=0) if nints > 1 else mean_inc
+        if nints > 1:
+            offset = offset * np.sqrt(nints / (nints - 1.0))
+        else:
+            notes.append("one integration: the fixed pattern cannot be subtracted")
+        sums, counts = zip(*(_block_products(data, good, e, used, offset) for e in edges),
+                           strict=True)
+        return cls(np.array(sums), np.array(counts), inc_sums, n_pixels, nints, notes,
+                   collection_steps)
+
+    # ------------------------------------------------------------------ data
+    def _block_list(self, blocks):
+        if blocks is None:
+            return tuple(range(self.n_blocks))
+        out = tuple(sorted({int(b) for b in blocks}))
+        if not out or out[0] < 0 or out[-1] >= self.n_blocks:
+            raise IPCInputError(f"blocks must be indices in 0..{self.n_blocks - 1}, got {blocks}")
+        return out
+
+    def _data(self, blocks):
+        """Summed statistics of ``blocks``: symmetric covariances (9, G', G'),
+        counts (9,), mean increments' sums (nints, G'), pixels."""
+        sel = list(blocks)
+        return _symmetrise(self._sums[sel].sum(axis=0), self._counts[sel].sum(axis=0)) + (
+            self._increments[sel].sum(axis=0), self._pixels[sel].sum())
+
+    def _samples(self, blocks):
+        """The data of ``blocks`` and of each leave-one-out subset."""
+        full = self._data(blocks)
+        if len(blocks) < 3:
+            return full, []
+        return full, [self._data([b for b in blocks if b != out]) for out in blocks]
+
+    def covariances(self, blocks=None):
+        """Measured covariances of the increments, symmetrised.
+
+        Parameters
+        ----------
+        blocks : sequence of int, optional
+            Spatial blocks (all when None).
+
+        Returns
+        -------
+        dict
+            ``lags`` (:data:`SYMMETRIC_LAGS`); ``cov`` ndarray (9, G-1, G-1)
+            [e-^2]: ``cov[c, k, l]`` the mean of ``d_k(p) d_l(p + delta)`` over
+            pixels, integrations, both orders of the pair and the reflections of
+            lag ``c`` (fixed pattern and spatial mean removed); ``pairs`` (9,):
+            pixel pairs (times integrations) per lag and order.
+        """
+        cov, pairs, _, _ = self._data(self._block_list(blocks))
+        return {"lags": SYMMETRIC_LAGS, "cov": cov, "pairs": pairs}
+
+    # ------------------------------------------------------------------ fitting
+    def _fit(self, data, fixed, start=None, read_noise=None):
+        """Weighted least squares of the increment covariances; returns params."""
+        cov, counts, incs, npix = data
+        current, beta = _mean_ramp(incs.sum(axis=0), npix * self.n_integrations)
+        model = _Model(self.n_groups, current, beta, self.collection_steps)
+        iu = np.triu_indices(self.n_groups - 1)
+        target = cov[:, iu[0], iu[1]]
+        diag = np.diagonal(cov[0])
+        # independent products: a lag other than 0 between two different
+        # increments is seen in both orders; the pattern subtraction costs 1/n
+        orders = np.ones((9, iu[0].size))
+        orders[1:, iu[0] != iu[1]] = 2.0
+        kept = (self.n_integrations - 1.0) / self.n_integrations if self.n_integrations > 1 \
+            else 1.0
+        sigma = np.sqrt(((diag[iu[0]] * diag[iu[1]])[None, :] + target ** 2)
+                        / (kept * counts[:, None] * orders))
+        p0 = start if start is not None else _start(cov, current, self.n_integrations)
+        if read_noise is not None:
+            p0 = dict(p0, s2=float(read_noise) ** 2)
+            fixed = dict(fixed, s2=p0["s2"])
+        names, x0 = _pack(p0, fixed, self.n_integrations)
+
+        def residual(x):
+            p = _unpack(x, names, p0, fixed)
+            return ((model.increments(p)[iu[0], iu[1], :].T - target) / sigma).ravel()
+
+        fit = least_squares(residual, x0, method="lm", x_scale=1.0, xtol=1e-12, ftol=1e-12)
+        p = _unpack(fit.x, names, p0, fixed)
+        dof = max(target.size - len(fit.x), 1)
+        p.update(current=float(current), beta=float(beta), steps=self.collection_steps,
+                 chi2_per_dof=float(2 * fit.cost / dof))
+        return p
+
+    def _fits(self, blocks, read_noise, bf_values=None, variant="full"):
+        """Full and leave-one-out fits of ``blocks`` (cached)."""
+        key = (blocks, read_noise, None if bf_values is None else tuple(bf_values), variant)
+        if key not in self._cache:
+            fixed = _variant_fixed(variant, self.n_integrations)
+            if bf_values is not None:
+                fixed["a"] = np.asarray(bf_values, dtype=np.float64)
+            full_data, loo = self._samples(blocks)
+            full = self._fit(full_data, fixed, read_noise=read_noise)
+            start = {k: full[k] for k in ("r", "s2", "k0", "k1", "a", "common")}
+            jack = [self._fit(d, fixed, start=start, read_noise=read_noise) for d in loo] \
+                if variant == "full" else []
+            self._cache[key] = (full_data, full, loo, jack)
+        return self._cache[key]
+
+    # ------------------------------------------------------------------ public
+    def measure(self, blocks=None, read_noise=None):
+        """Joint fit of gain ratio, read noise, non-linearity, IPC and brighter-fatter.
+
+        Parameters
+        ----------
+        blocks : sequence of int, optional
+            Spatial blocks to use (all when None); the errors are a jackknife over
+            them (at least 3 are needed for errors).
+        read_noise : float, optional
+            Read noise per read [e-]; fitted when None.
+
+        Returns
+        -------
+        dict
+            ``gain_ratio`` {value, error} (true electrons per electron of the
+            data: the measured gain is the assumed one times ``value``);
+            ``current`` [e-/group]; ``read_noise`` {value, error, source} [e-
+            per read]; ``classical_nonlinearity`` {measured, beta, error,
+            significance, detected, form}; ``brighter_fatter`` {measured,
+            detected, significance (nearest terms over their error),
+            kernel, kernel_error (5x5 [2 + dy][2 + dx], 1/e-), chi2, chi2_sigma,
+            note}; ``ipc`` {terms: {term: {value (at zero charge), error,
+            slope_per_10ke, slope_error}}}; ``nonlinear_ipc`` {detected,
+            significance (slope of x + y over its error), slope_per_10ke,
+            error, note}; ``chi2_per_dof``; ``n_pixels``; ``covariance_curves``
+            (same-increment ``C_kk(delta) / (I/r)`` against ``Qbar_{k+1}``:
+            measured with errors and each variant refitted); ``params`` (for
+            :meth:`predict`); ``variants`` (each refitted: ``chi2_per_dof``,
+            ``params``); ``notes``. Detection: significance >= 5.
+        """
+        blocks = self._block_list(blocks)
+        full_data, full, loo, jack = self._fits(blocks, read_noise)
+        out = {"current": full["current"], "n_pixels": int(full_data[3]),
+               "n_integrations": self.n_integrations, "n_groups": self.n_groups,
+               "chi2_per_dof": full["chi2_per_dof"], "notes": list(self.notes)}
+        errors = _errors(jack)
+        if not jack:
+            out["notes"].append("fewer than 3 blocks: no jackknife, errors unknown")
+        out["gain_ratio"] = {"value": float(full["r"]), "error": errors("r")}
+        sigma = np.sqrt(max(full["s2"], 0.0))
+        s_err = errors("s2")
+        out["read_noise"] = {
+            "value": float(sigma),
+            "error": None if read_noise is not None else (
+                float(s_err / (2 * sigma)) if sigma > 0 and s_err is not None else s_err),
+            "source": "given" if read_noise is not None else
+            "fitted (covariance of consecutive increments)"}
+        out["classical_nonlinearity"] = _nonlinearity_report(full, jack, errors,
+                                                             self._integration_betas(blocks))
+        out["ipc"] = {"terms": {t: {"value": float(full["k0"][i]),
+                                    "error": errors("k0", i),
+                                    "slope_per_10ke": float(1e4 * full["k1"][i]),
+                                    "slope_error": _scaled(errors("k1", i), 1e4)}
+                                for i, t in enumerate(TERMS)}}
+        out["nonlinear_ipc"] = _nonlinear_ipc_report(full, jack, self.n_integrations)
+        out["brighter_fatter"] = _bf_report(full, jack, self.n_integrations)
+        variants = {v: self._fits(blocks, read_noise, variant=v)[1] for v in VARIANTS}
+        out["params"] = _public_params(full, self.n_groups)
+        out["variants"] = {v: {"chi2_per_dof": p["chi2_per_dof"],
+                               "params": _public_params(p, self.n_groups)}
+                           for v, p in variants.items()}
+        out["covariance_curves"] = self._curves(full_data, loo, full, out["variants"])
+        return out
+
+    def levels(self, blocks=None, bf_kernel=None, read_noise=None, method="increments"):
+        """Per-level kernels ``alpha(S, S) w(d)`` with brighter-fatter removed.
+
+        Parameters
+        ----------
+        blocks : sequence of int, optional
+            Spatial blocks (all when None); errors by the jackknife over them
+            (each left-out block with its own fit).
+        bf_kernel : array_like (5, 5), optional
+            Brighter-fatter kernel [1/e-] to remove (its symmetric part); default:
+            the one :meth:`measure` finds on the same blocks. With one
+            integration the common term of brighter-fatter and the fixed
+            pattern, fitted beside IPC, is removed instead (and ``bf_kernel``
+            is not used).
+        read_noise : float, optional
+            Read noise per read [e-]; fitted when None.
+        method : {"increments", "difference"}
+            ``difference``: for about eight reads ``b`` spread over the ramp, the
+            covariance of ``D_b = M_b - M_0`` (from the same sums) minus its
+            brighter-fatter term and ``2 sigma^2`` at lag 0, at ``Qbar_b = I b``:
+            what a flat at level ``Qbar_b`` would give, but the points share
+            their increments (correlated) and the brighter-fatter term removed
+            grows to the size of the IPC term itself at the top of a ramp.
+            ``increments``: about eight disjoint windows of consecutive
+            increments; each window's same-increment covariances minus their
+            brighter-fatter term (``I^2 J*J*a``, a few % of the IPC term) and
+            ``2 sigma^2``, at the mean ``Qbar_{k+1}`` of the window: independent
+            points, nearly free of the brighter-fatter model (the default: a law
+            fitted to the points may treat them as independent).
+
+        Returns
+        -------
+        list of dict
+            ``level`` [e-], ``terms`` {term: {value, error}}, ``V`` (shot
+            variance [e-^2] of ``D_b``, or of one increment of the window),
+            ``poisson_ratio`` (``V`` over the mean charge it holds:
+            ``(1 - 2 beta level)^2 / r``), ``reads`` (the reads used), ``notes``.
+        """
+        if method not in ("difference", "increments"):
+            raise IPCInputError(f"method must be 'difference' or 'increments', got {method!r}")
+        blocks = self._block_list(blocks)
+        given = bf_kernel is not None and self.n_integrations > 1
+        values = symmetric_from_kernel(bf_kernel) if given else None
+        if values is not None:
+            values = values - np.array([values @ _MULT, *np.zeros(8)])  # keep sum a = 0
+        full_data, full, loo, jack = self._fits(blocks, read_noise, values)
+        notes = [_level_note(self.n_integrations, given)]
+        n_inc = self.n_groups - 1
+        if method == "difference":
+            picks = [np.arange(b) for b in np.unique(np.round(
+                np.linspace(n_inc / 8, n_inc, min(8, n_inc)))).astype(int)]
+        else:
+            picks = [w for w in np.array_split(np.arange(n_inc), min(8, n_inc)) if w.size]
+        rows = []
+        for inc in picks:
+            point = _level_point(full_data, full, self.n_groups, inc, method)
+            samples = [_level_point(d, p, self.n_groups, inc, method)
+                       for d, p in zip(loo, jack, strict=True)]
+            samples = [s for s in samples if s is not None]
+            level = float(full["current"] * (inc.size if method == "difference"
+                                             else np.mean(inc + 1)))
+            reads = [0, int(inc.size)] if method == "difference" else [int(inc[0]),
+                                                                        int(inc[-1] + 1)]
+            if point is None:
+                rows.append({"level": level, "reads": reads, "terms": None,
+                             "problem": "no shot noise left", "notes": notes})
+                continue
+            err = np.sqrt(np.diag(_jackknife([s[1] for s in samples]))) \
+                if len(samples) >= 3 else np.full(5, np.nan)
+            mean_charge = level if method == "difference" else full["current"]
+            rows.append({"level": level, "reads": reads,
+                         "terms": {t: {"value": float(point[1][i]), "error": float(err[i])}
+                                   for i, t in enumerate(TERMS)},
+                         "V": float(point[0]), "poisson_ratio": float(point[0] / mean_charge),
+                         "notes": notes})
+        return rows
+
+    def predict(self, params, delta, variant):
+        """Model same-increment covariances for figures.
+
+        Parameters
+        ----------
+        params : dict
+            ``measure()["params"]`` (or a variant's ``params``).
+        delta : (int, int)
+            Lag ``(dy, dx)`` (signs ignored: the model is symmetric).
+        variant : str
+            One of :data:`VARIANTS`: ``ipc_only`` drops the signal dependence of
+            IPC and brighter-fatter, ``nonlinear_ipc`` drops brighter-fatter,
+            ``brighter_fatter`` drops the signal dependence, ``full`` keeps all.
+
+        Returns
+        -------
+        dict
+            ``level``: ``Qbar_{k+1}`` [e-] for each increment ``k``;
+            ``value``: ``C_kk(delta) / (I / r)`` (dimensionless).
+        """
+        if variant not in VARIANTS:
+            raise IPCInputError(f"variant must be one of {VARIANTS}, got {variant!r}")
+        p = _internal_params(params)
+        for name, value in _variant_fixed(variant, 2).items():
+            p[name] = value
+        model = _Model(int(params["n_groups"]), p["current"], p["beta"], p["steps"])
+        lag = SYMMETRIC_LAGS.index((abs(int(delta[0])), abs(int(delta[1]))))
+        same = np.diagonal(model.increments(p)[:, :, lag])
+        return {"level": model.level[1:].copy(), "value": same * p["r"] / p["current"]}
+
+    # ------------------------------------------------------------------ helpers
+    def _integration_betas(self, blocks):
+        """``beta`` of each integration's mean ramp (for the non-linearity error)."""
+        if self.n_integrations < 3:
+            return None
+        sel = list(blocks)
+        return _mean_ramp(self._increments[sel].sum(axis=0), self._pixels[sel].sum())[1]
+
+    def _curves(self, full_data, loo, full, variants):
+        """Same-increment normalised covariances, measured and per variant."""
+        norm = full["r"] / full["current"]
+        level = full["current"] * np.arange(1, self.n_groups)
+        out = {"level": level.tolist(), "normalisation": "C_kk(delta) / (I / r)",
+               "chi2_per_dof": {v: variants[v]["chi2_per_dof"] for v in VARIANTS}, "lags": {}}
+        for c, (dy, dx) in enumerate(SYMMETRIC_LAGS):
+            measured = np.diagonal(full_data[0][c]) * norm
+            if loo:
+                err = np.sqrt(np.diag(_jackknife([np.diagonal(d[0][c]) * norm for d in loo])))
+            else:
+                err = np.full(measured.shape, np.nan)
+            row = {"measured": measured.tolist(), "error": err.tolist()}
+            for v in VARIANTS:
+                row[v] = self.predict(variants[v]["params"], (dy, dx), v)["value"].tolist()
+            out["lags"][f"{dy},{dx}"] = row
+        return out
+
+
+# ---------------------------------------------------------------------- reading helpers
+def _usable(data, mask, border, saturation):
+    """Good pixels (ny, nx), the number of reads used, whether every used read is
+    finite, notes."""
+    nints, ngroups, ny, nx = data.shape
+    notes = []
+    used = ngroups
+    if saturation is not None:
+        frac = np.array([(data[:, g] >= float(saturation)).mean() for g in range(ngroups)])
+        over = np.nonzero(frac > 0.01)[0]
+        if over.size:
+            used = int(over[0])
+            notes.append(f"reads {used}..{ngroups - 1} not used: more than 1 % of the pixels "
+                         f"at or above the saturation level {float(saturation):.6g} e-")
+    bad = np.zeros((ny, nx), bool)
+    for i in range(nints):
+        part = data[i, :used]
+        bad |= ~np.isfinite(part).all(axis=0)
+    finite = not bad.any()
+    for i in range(nints):
+        part = data[i, :used]
+        if saturation is not None:
+            bad |= (part >= float(saturation)).any(axis=0)
+    if mask is not None:
+        m = np.asarray(mask, bool)
+        if m.shape == (ny, nx):
+            bad |= m
+        elif m.shape == data.shape:
+            bad |= m[:, :used].any(axis=(0, 1))
+        else:
+            raise IPCInputError(f"mask shape {m.shape} fits neither the ramps {data.shape} "
+                                "nor a frame")
+    b = int(border)
+    if b > 0:
+        bad[:b] = bad[-b:] = True
+        bad[:, :b] = bad[:, -b:] = True
+    return ~bad, used, finite, notes
+
+
+def _region(data, good, edge, used):
+    """A block with a margin of 2 (zero outside the frame): increments
+    (nints, G', h, w), good pixels in the margin, good pixels of the block."""
+    y0, y1, x0, x1 = edge
+    nints, _, ny, nx = data.shape
+    m = _MARGIN
+    h, w = y1 - y0 + 2 * m, x1 - x0 + 2 * m
+    reads = np.zeros((nints, used, h, w))
+    ya, yb, xa, xb = max(y0 - m, 0), min(y1 + m, ny), max(x0 - m, 0), min(x1 + m, nx)
+    sl = (slice(ya - y0 + m, yb - y0 + m), slice(xa - x0 + m, xb - x0 + m))
+    reads[:, :, sl[0], sl[1]] = data[:, :used, ya:yb, xa:xb]
+    ok = np.zeros((h, w), bool)
+    ok[sl] = good[ya:yb, xa:xb]
+    inner = np.zeros((h, w), bool)
+    inner[m:h - m, m:w - m] = ok[m:h - m, m:w - m]
+    reads = np.where(ok, reads, 0.0)
+    return np.diff(reads, axis=1), ok, inner
+
+
+def _block_read_sums(data, good, edge, used, finite):
+    """Sum over the block's good pixels of each read (nints, used)."""
+    y0, y1, x0, x1 = edge
+    vals = data[:, :used, y0:y1, x0:x1]
+    ok = good[y0:y1, x0:x1]
+    if not finite:
+        vals = np.where(ok, vals, 0.0)
+    return np.einsum("igyx,yx->ig", vals, ok.astype(np.float64))
+
+
+def _block_products(data, good, edge, used, offset):
+    """``P + P^T`` with ``P = sum_p d_k(p) d_l(p + delta)`` over the block's pixels
+    ``p`` (13, G', G'), and the number of pixel pairs per lag (13,).
+
+    Only the symmetric part is needed, so each lag costs one symmetric rank-k
+    update: with ``A`` the block's increments and ``B`` those shifted by the lag,
+    ``A B^T + B A^T = (A + B)(A + B)^T - A A^T - B B^T``.
+    """
+    inc, ok, inner = _region(data, good, edge, used)
+    nints, g = inc.shape[:2]
+    if nints > 1:
+        inc = (inc - inc.mean(axis=0)) * np.sqrt(nints / (nints - 1.0))
+    inc -= offset[:, :, None, None]
+    inc *= ok
+    h, w = ok.shape
+    size = h * w
+    flat = inc.reshape(nints, g, size)
+    okf, inf = ok.ravel(), inner.ravel()
+    sums = np.zeros((len(LAGS), g, g))
+    counts = np.array([nints * np.count_nonzero(inf[:size - s] & okf[s:])
+                       for s in (dy * w + dx for dy, dx in LAGS)], dtype=np.float64)
+    for i in range(nints):
+        whole = flat[i]
+        first = whole * inf.astype(np.float64)
+        aa = first @ first.T
+        bb_all = whole @ whole.T
+        for n, (dy, dx) in enumerate(LAGS):
+            s = dy * w + dx
+            if s == 0:
+                sums[n] += 2.0 * aa
+                continue
+            head = whole[:, :s]
+            both = first[:, :size - s] + whole[:, s:]
+            sums[n] += both @ both.T - aa - (bb_all - head @ head.T)
+    return sums, counts
+
+
+def _symmetrise(sums, counts):
+    """Symmetric covariances (9, G', G') (both orders of each pair, the four
+    reflections of each lag) and the pixel-pair counts per lag (9,)."""
+    g = sums.shape[-1]
+    total = np.zeros((9, g, g))
+    n = np.zeros(9)
+    for raw, c in enumerate(_CLASS):
+        total[c] += sums[raw]
+        n[c] += counts[raw]
+    return total / (2.0 * n[:, None, None]), n
+
+
+# ---------------------------------------------------------------------- fit helpers
+def _start(cov, current, nints):
+    """Starting parameters from the data."""
+    g = cov.shape[-1]
+    diag0 = np.diagonal(cov[0])
+    s2 = max(-np.mean(np.diagonal(cov[0], offset=1)), 0.0) if g > 1 else 0.0
+    shot = max(np.mean(diag0) - 2 * s2, 1e-3 * current)
+    k0 = np.array([np.mean(np.diagonal(cov[c])) / (2 * shot) for c in _TERM_CLASS])
+    return {"r": current / shot, "s2": s2, "k0": k0, "k1": np.zeros(5), "a": np.zeros(9),
+            "common": np.zeros(18) if nints == 1 else None}
+
+
+def _variant_fixed(variant, nints):
+    """Parameters held fixed in a variant (and by one integration)."""
+    fixed = {}
+    if variant in ("ipc_only", "brighter_fatter"):
+        fixed["k1"] = np.zeros(5)
+    if variant in ("ipc_only", "nonlinear_ipc") or nints == 1:
+        fixed["a"] = np.zeros(9)
+    return fixed
+
+
+def _pack(p, fixed, nints):
+    """Free parameter names (name, index) and their scaled start vector."""
+    names = []
+    for name, size in (("r", None), ("s2", None), ("k0", 5), ("k1", 5)):
+        if name not in fixed:
+            names += [(name, None)] if size is None else [(name, i) for i in range(size)]
+    if "a" not in fixed:
+        names += [("a", i) for i in range(1, 9)]  # a(0,0) from sum a = 0
+    if nints == 1:
+        names += [("common", i) for i in range(18)]
+    x0 = np.array([(p[n] if i is None else p[n][i]) / _SCALES[n] for n, i in names])
+    return names, x0
+
+
+def _unpack(x, names, p0, fixed):
+    """Parameters from the scaled vector."""
+    p = {k: (np.array(v, dtype=np.float64) if isinstance(v, np.ndarray) else v)
+         for k, v in p0.items()}
+    p.update({k: (np.array(v) if isinstance(v, np.ndarray) else v) for k, v in fixed.items()})
+    for value, (name, i) in zip(x, names, strict=True):
+        if i is None:
+            p[name] = value * _SCALES[name]
+        else:
+            p[name][i] = value * _SCALES[name]
+    p["a"][0] = -(p["a"][1:] @ _MULT[1:])
+    return p
+
+
+def _errors(jack):
+    """``errors(name, index=None)``: jackknife standard error of a parameter."""
+    def errors(name, index=None):
+        if len(jack) < 3:
+            return None
+        vals = [j[name] if index is None else j[name][index] for j in jack]
+        return float(np.sqrt(_jackknife(vals)[0, 0]))
+    return errors
+
+
+def _scaled(value, factor):
+    return None if value is None else float(value * factor)
+
+
+def _significance(value, error):
+    return None if error is None or not error > 0 else float(value / error)
+
+
+def _nonlinearity_report(full, jack, errors, integration_betas):
+    err = errors("beta")
+    if integration_betas is not None and err is not None:
+        n = integration_betas.size
+        err = max(err, float(np.std(integration_betas, ddof=1) / np.sqrt(n)))
+    sig = _significance(full["beta"], err)
+    return {"measured": err is not None, "beta": float(full["beta"]), "error": err,
+            "significance": sig, "detected": bool(sig is not None and abs(sig) >= _DETECTION),
+            "form": "M = Q - beta Q^2 (Q collected, M measured, e-)",
+            "note": "from the curvature of the mean ramp; error: the larger of the jackknife "
+                    "over blocks and the scatter between integrations"}
+
+
+def _nonlinear_ipc_report(full, jack, nints):
+    value = float(full["k1"][0] + full["k1"][1]) * 1e4
+    err = None
+    if len(jack) >= 3:
+        err = float(np.sqrt(_jackknife([1e4 * (j["k1"][0] + j["k1"][1]) for j in jack])[0, 0]))
+    sig = _significance(value, err)
+    detected = bool(sig is not None and abs(sig) >= _DETECTION)
+    note = (f"slope of the nearest terms x + y: {value:+.3g} per 10 ke-"
+            + ("" if err is None else f" +- {err:.2g}") + ", fitted beside "
+            + ("brighter-fatter" if nints > 1 else "the common brighter-fatter and pattern term"))
+    return {"detected": detected, "significance": sig, "slope_per_10ke": value, "error": err,
+            "note": note + (": detected" if detected else ": not detected")}
+
+
+def _bf_report(full, jack, nints):
+    if nints < 2:
+        return {"measured": False, "detected": False, "significance": None, "kernel": None,
+                "kernel_error": None,
+                "note": "brighter-fatter not measured: at least two integrations at one "
+                        "illumination are needed to tell it from the fixed pattern (their "
+                        "common term was fitted beside the IPC terms and removed)"}
+    kernel = kernel_from_symmetric(full["a"]).tolist()
+    if len(jack) < 3:
+        return {"measured": True, "detected": False, "significance": None, "kernel": kernel,
+                "kernel_error": None, "note": "fewer than 3 blocks: no error"}
+    cov = _jackknife([j["a"] for j in jack])
+    err = np.sqrt(np.diag(cov))
+    nearest = float(full["a"][1] + full["a"][2])
+    nearest_err = float(np.sqrt(_jackknife([j["a"][1] + j["a"][2] for j in jack])[0, 0]))
+    sig = _significance(nearest, nearest_err)
+    free = cov[1:, 1:]
+    try:
+        chi2 = float(full["a"][1:] @ np.linalg.solve(free, full["a"][1:]))
+    except np.linalg.LinAlgError:
+        chi2 = float("nan")
+    detected = bool(sig is not None and sig >= _DETECTION)
+    return {"measured": True, "detected": detected, "significance": sig,
+            "significance_kind": "nearest terms a(0,1) + a(1,0) over their jackknife error",
+            "chi2": chi2, "chi2_sigma": _sigma_from_chi2(chi2, 8) if np.isfinite(chi2) else None,
+            "kernel": kernel, "kernel_error": kernel_from_symmetric(err).tolist(),
+            "note": "per electron; pixel area 1 + sum_d a(d) Q(p+d); symmetric part: "
+                    + ("detected" if detected else "not detected")}
+
+
+def _public_params(p, n_groups):
+    """Fit parameters as plain numbers (for :meth:`FlatRamps.predict` and JSON)."""
+    return {"n_groups": int(n_groups), "current": float(p["current"]),
+            "beta": float(p["beta"]), "gain_ratio": float(p["r"]),
+            "read_noise_variance": float(p["s2"]),
+            "k0": dict(zip(TERMS, map(float, p["k0"]), strict=True)),
+            "k1_per_electron": dict(zip(TERMS, map(float, p["k1"]), strict=True)),
+            "brighter_fatter": [float(v) for v in p["a"]],
+            "common": None if p.get("common") is None else [float(v) for v in p["common"]],
+            "collection_steps": p["steps"]}
+
+
+def _internal_params(params):
+    return {"current": params["current"], "beta": params["beta"], "r": params["gain_ratio"],
+            "s2": params["read_noise_variance"],
+            "k0": np.array([params["k0"][t] for t in TERMS]),
+            "k1": np.array([params["k1_per_electron"][t] for t in TERMS]),
+            "a": np.array(params["brighter_fatter"], dtype=np.float64),
+            "common": None if params.get("common") is None else np.array(params["common"]),
+            "steps": params.get("collection_steps")}
+
+
+# ---------------------------------------------------------------------- levels
+def _level_note(nints, given):
+    if nints < 2:
+        return ("one integration: brighter-fatter not measured and not told from the fixed "
+                "pattern; their common term, fitted from the pairs of different increments, "
+                "was removed")
+    if given:
+        return "brighter-fatter removed with the kernel given"
+    return "brighter-fatter removed with the kernel measured from the ramps"
+
+
+def _level_point(data, p, n_groups, inc, method):
+    """``(V, terms)`` of one level, brighter-fatter and read noise removed.
+
+    ``difference``: ``Cov(M_b - M_0)`` with ``b = inc.size``; ``increments``:
+    the mean same-increment covariance of the increments ``inc``.
+    """
+    cov, counts = data[0], data[1]
+    model = _Model(n_groups, p["current"], p["beta"], p["steps"])
+    if method == "difference":
+        b = inc.size
+        clean = cov[:, :b, :b].sum(axis=(1, 2)) - model.excess_of_difference(p, b)
+        n = counts
+    else:
+        same = np.diagonal(cov, axis1=1, axis2=2)[:, inc]
+        clean = (same - model.excess_of_increments(p)[:, inc]).mean(axis=1)
+        n = counts * inc.size
+    err = np.sqrt((clean[0] ** 2 + clean ** 2) / n)
+    entries = {f"{dy},{dx}": {"cov": float(clean[c]), "error": float(err[c])}
+               for c, (dy, dx) in enumerate(SYMMETRIC_LAGS)}
+    entries["1,-1"] = entries["1,1"]
+    try:
+        solved = solve_kernel(entries, 0.0)
+    except IPCInputError:
+        return None
+    return solved["V"], np.array([solved["terms"][t]["value"] for t in TERMS])
