@@ -189,19 +189,29 @@ def _kernel_figure(fig, ax, bf):
     ax.set_title(f"Brighter-fatter kernel ({state})")
 
 
-def _covariance_figure(fig, axes, curves):
-    """Normalised same-interval covariance against signal per lag, measured and
-    as the IPC-only, non-linear-IPC and brighter-fatter models predict it."""
-    for ax, curve in zip(axes, curves):
-        level = np.array(curve["level"], float)
-        ax.errorbar(level, curve["measured"], curve.get("error"), fmt="o", ms=3,
-                    label="measured")
-        for variant, values in curve.get("predictions", {}).items():
-            ax.plot(level, values, "-", lw=1, label=variant.replace("_", " "))
-        ax.set_title(f"lag {tuple(curve['lag'])}", fontsize=9)
+COVARIANCE_LAGS = ("0,0", "0,1", "1,0", "1,1")
+"""Lags drawn in the flat-ramp covariance figure."""
+
+
+def _covariance_figure(axes, curves):
+    """Same-increment covariance of flat ramps against signal per lag (normalised
+    by the shot variance of one increment), measured and as each model refitted
+    predicts it: IPC only, non-linear IPC, brighter-fatter, all together."""
+    level = np.array(curves["level"], float)
+    chi2 = curves.get("chi2_per_dof", {})
+    for ax, lag in zip(axes, COVARIANCE_LAGS):
+        row = curves["lags"][lag]
+        err = np.array([np.nan if e is None else e for e in row["error"]], float)
+        ax.errorbar(level, row["measured"], err, fmt="o", ms=3, color="k", label="measured")
+        for variant in ("ipc_only", "nonlinear_ipc", "brighter_fatter", "full"):
+            if variant in row:
+                x2 = chi2.get(variant)
+                label = variant.replace("_", " ") + (f" (chi2/dof {x2:.2f})" if x2 else "")
+                ax.plot(level, row[variant], "-", lw=1, label=label)
+        ax.set_title(f"lag (dy, dx) = ({lag})", fontsize=9)
         ax.set_xlabel("signal at the read [e-]")
-    axes[0].set_ylabel("C(lag) / shot variance")
-    axes[0].legend(fontsize=6)
+    axes[0].set_ylabel(curves.get("normalisation", "C / shot variance"))
+    axes[1].legend(fontsize=6)
 
 
 def write_figures(folder, document, law, geometry):
@@ -255,10 +265,9 @@ def write_figures(folder, document, law, geometry):
         save(fig, "calibrate_bf_kernel.png")
     ramps = (document.get("flats") or {}).get("ramps") or []
     curves = ramps[0].get("covariance_curves") if ramps else None
-    if curves:
-        fig, axes = plt.subplots(1, len(curves), figsize=(3.2 * len(curves), 3.6),
-                                 squeeze=False)
-        _covariance_figure(fig, axes[0], curves)
+    if curves and all(lag in curves.get("lags", {}) for lag in COVARIANCE_LAGS):
+        fig, axes = plt.subplots(1, len(COVARIANCE_LAGS), figsize=(13, 3.8))
+        _covariance_figure(axes, curves)
         save(fig, "calibrate_covariance.png")
     if signals:
         paths += _direction_figures(folder, plt, hot_rows, flat_rows, law, geometry, signals)

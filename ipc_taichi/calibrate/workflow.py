@@ -128,7 +128,7 @@ class _Flats:
     """Flat inputs: ramps (one :class:`.ramps.FlatRamps` per illumination) and
     frames at one level (one row per file), with their held-out folds."""
 
-    def __init__(self, flat_files, read_noise, not_measured, notes):
+    def __init__(self, flat_files, read_noise, not_measured, notes, collection_steps=None):
         self.read_noise = read_noise
         self.sets, self.frame_files = [], []
         ramp_files = [f for f in flat_files if f.meta.get("layout") == "ramp"]
@@ -139,7 +139,8 @@ class _Flats:
             sat = [f.meta.get("saturation") for f in group if f.meta.get("saturation")]
             label = ", ".join(f.label for f in group)
             self.sets.append((label, ramps.FlatRamps.from_ramps(
-                data, mask, saturation=min(sat) if sat else None)))
+                data, mask, saturation=min(sat) if sat else None,
+                collection_steps=collection_steps)))
         self.measured = [(label, s.measure(read_noise=read_noise)) for label, s in self.sets]
         self.kernels = [m["brighter_fatter"].get("kernel") if m["brighter_fatter"].get("measured")
                         else None for _, m in self.measured]
@@ -327,7 +328,7 @@ def _gain_given(files, gain):
 def calibrate(darks=(), flats=(), reference=None, output=None, *, report_path=None,
               figures=None, gain=None, bunit=None, hdu=None, read_noise=None,
               dq_bits=DEFAULT_DQ_BITS, refpix=None, threshold=30.0, folds=10,
-              overwrite=False):
+              collection_steps=None, overwrite=False):
     """Measure a detector's coupling and write its model file.
 
     Parameters
@@ -362,6 +363,12 @@ def calibrate(darks=(), flats=(), reference=None, output=None, *, report_path=No
         Hot-pixel detection level in robust standard deviations.
     folds : int
         Folds of the held-out law choice (:func:`.lawfit.choose_law`).
+    collection_steps : int, optional
+        For SIMULATED flat ramps whose charge is collected in this many
+        discrete steps per group (a charge arriving in a step does not steer
+        that step: less brighter-fatter within a group than a detector's
+        continuous collection, which is the default): see
+        :mod:`.ramps`.
     overwrite : bool
 
     Returns
@@ -382,7 +389,8 @@ def calibrate(darks=(), flats=(), reference=None, output=None, *, report_path=No
     not_measured, notes = [], []
     hot = _HotPixels(dark_frames, threshold, not_measured)
     rn = read_noise if read_noise is not None else hot.read_noise
-    flat = _Flats(flat_frames, rn, not_measured, notes) if flat_frames else None
+    flat = (_Flats(flat_frames, rn, not_measured, notes, collection_steps) if flat_frames
+            else None)
     effects = _effects(flat, hot, _gain_given(dark_frames + flat_frames, gain))
     bf_likely = _frames_rise_like_bf(flat, hot)
     if bf_likely:

@@ -44,6 +44,9 @@ def add_parser(sub):
     p.add_argument("--refpix", type=int, default=None, help="reference border width (pixels)")
     p.add_argument("--threshold", type=float, default=30.0,
                    help="hot-pixel detection level in robust sigmas (default 30)")
+    p.add_argument("--collection-steps", type=int, default=None, metavar="N",
+                   help="simulated flat ramps only: charge collected in N discrete steps per "
+                        "group (default: continuous, as a detector collects)")
     p.add_argument("--folds", type=int, default=10,
                    help="folds of the held-out law choice (default 10)")
     p.add_argument("--overwrite", action="store_true", help="replace existing outputs")
@@ -63,7 +66,8 @@ def run_calibrate(args):
                        report_path=args.report, figures=args.figures, gain=args.gain,
                        bunit=args.bunit, hdu=args.hdu, read_noise=args.read_noise,
                        dq_bits=args.dq_bits or DEFAULT_DQ_BITS, refpix=args.refpix,
-                       threshold=args.threshold, folds=args.folds, overwrite=args.overwrite)
+                       threshold=args.threshold, folds=args.folds,
+                       collection_steps=args.collection_steps, overwrite=args.overwrite)
     if not args.quiet:
         for line in summary_lines(result["report"], result["model"]):
             print(f"calibrate: {line}", file=sys.stderr)
