@@ -57,7 +57,7 @@ def ipc_squared_kernel(a, alpha=waffle.ALPHA):
 
 # ---- solid-waffle's own analysis -------------------------------------------------------
 
-def _waffle_config(made, darks, nreads, outstem):
+def _waffle_config(made, darks, nreads, outstem, options=()):
     half = nreads // 2
     times = f"1 {half} {half + 2} {nreads}"
     lines = ["DETECTOR: solid-waffle_flat_simulator", "LIGHT:"]
@@ -65,7 +65,7 @@ def _waffle_config(made, darks, nreads, outstem):
     lines += ["DARK:"] + [f"    {f}" for f in darks]
     lines += [f"FORMAT: {waffle.FORMAT}", "CHAR: Advanced 1 3 3 bfe", "NBIN: 4 4",
               f"TIME: {times}", f"TIME2A: 1 2 4 {nreads}", f"TIME2B: 1 2 4 {nreads}",
-              f"TIME3: 1 2 4 {nreads}", f"OUTPUT: {outstem}"]
+              f"TIME3: 1 2 4 {nreads}", f"OUTPUT: {outstem}", *options]
     return "\n".join(lines) + "\n"
 
 
@@ -74,15 +74,16 @@ def _mean_error(values, good):
     return float(v.mean()), float(v.std(ddof=1) / np.sqrt(v.size))
 
 
-def waffle_analysis(made, darks, nreads, outstem):
+def waffle_analysis(made, darks, nreads, outstem, options=()):
     """solid-waffle's characterisation of one set: the steps of ``run_ir_all``
     (its figures, summary and log written under ``outstem``), hot pixels left
-    out (the simulator makes none)."""
+    out (the simulator makes none); ``options``: more configuration lines
+    (e.g. ``FULLNL: True True False``)."""
     from solid_waffle import correlation_run
 
     start = time.perf_counter()
     with open(outstem + "_config.txt", "w") as f:
-        f.write(_waffle_config(made, darks, nreads, outstem))
+        f.write(_waffle_config(made, darks, nreads, outstem, options))
     with open(outstem + "_config.txt") as f, open(outstem + "_log.txt", "w") as log, \
             contextlib.redirect_stdout(log):
         cf = correlation_run.Config(f.readlines(), verbose=True)
@@ -163,7 +164,7 @@ def truth_of(made):
     return t
 
 
-def run_set(out, kind, side, nramps, nreads, level):
+def run_set(out, kind, side, nramps, nreads, level, options=()):
     folder = os.path.join(out, kind)
     os.makedirs(folder, exist_ok=True)
     start = time.perf_counter()
@@ -174,7 +175,7 @@ def run_set(out, kind, side, nramps, nreads, level):
     if side != "ours":
         darks = waffle.dark_ramps(folder, kind, nramps=nramps, nreads=nreads)
         row["solid_waffle"] = waffle_analysis(made, darks, nreads,
-                                              os.path.join(folder, "solid_waffle"))
+                                              os.path.join(folder, "solid_waffle"), options)
     if side != "waffle":
         row["ours"] = ours_analysis(made, os.path.join(folder, "report.json"), nreads, level)
     return row
@@ -229,13 +230,15 @@ def main(argv=None):
     parser.add_argument("--level", type=float, default=42000.0)
     parser.add_argument("--kinds", nargs="+", choices=list(waffle.KINDS),
                         default=list(waffle.KINDS))
+    parser.add_argument("--waffle-option", action="append", default=[],
+                        help="one more line of solid-waffle's configuration (repeatable)")
     args = parser.parse_args(argv)
     os.makedirs(args.out, exist_ok=True)
-    rows = [run_set(args.out, kind, args.side, args.nramps, args.nreads, args.level)
-            for kind in args.kinds]
+    rows = [run_set(args.out, kind, args.side, args.nramps, args.nreads, args.level,
+                    args.waffle_option) for kind in args.kinds]
     with open(os.path.join(args.out, "validation.json"), "w") as f:
         json.dump({"nramps": args.nramps, "nreads": args.nreads, "level": args.level,
-                   "sets": rows}, f, indent=1)
+                   "waffle_options": args.waffle_option, "sets": rows}, f, indent=1)
     print(markdown(rows))
     for row in rows:
         times = [f"simulation {row['simulation_seconds']:.1f} s"]
