@@ -9,6 +9,8 @@ statistics need it. A ramp's 19 independent increments each fix alpha to about
 give about 0.9 % per axis, against the 1.5 % asked for the IPC-only set.
 """
 
+import os
+
 import numpy as np
 import pytest
 
@@ -27,10 +29,12 @@ ALPHA_TOLERANCE = {"ipc": 0.015, "ipc_bf": 0.03, "ipc_bf_nl": 0.03}
 
 @pytest.fixture(scope="module", params=list(waffle.KINDS))
 def flat_set(request, tmp_path_factory):
-    """One simulated set; its calibration is made by the first test that asks."""
+    """One simulated set; its calibration is made by the first test that asks.
+    The ramp file (168 MB) is removed when the set's tests are done."""
     folder = tmp_path_factory.mktemp(f"waffle_{request.param}")
     made = waffle.flat_ramps(folder, request.param, nramps=NRAMPS, nreads=NREADS, level=LEVEL)
-    return {"kind": request.param, "folder": folder, **made}
+    yield {"kind": request.param, "folder": folder, **made}
+    os.remove(made["path"])
 
 
 def _calibrated(flat_set):
