@@ -177,8 +177,11 @@ def test_calibrate_row_is_measured_and_rendered():
     from ipc_taichi.bench.launch import work
     from ipc_taichi.bench.render import render_section
 
-    section = work({"config": "calibrate", "size": 512, "groups": 3})
+    section = work({"config": "calibrate", "size": 512, "groups": 3, "flat_size": 128,
+                    "flat_ints": 2, "flat_groups": 5})
     row = section["rows"][0]
     assert row["hot pixels found"] > 10
     assert abs(row["alpha_x at 10 ke- (made with 0.006)"] - 0.006) < 0.0015
-    assert "512x512 x 3 groups" in render_section(section)
+    assert row["BF / NL-IPC detected (none made)"] == "False / False"
+    text = render_section(section)
+    assert "512x512 x 3 groups" in text and "2 x 5 x 128x128" in text

@@ -226,10 +226,17 @@ def test_darks_without_hot_pixels_and_one_flat_level(cpu, tmp_path, rng):
     assert res["model"].law.alpha(level, level) == pytest.approx(0.0055, abs=0.0013)
 
 
-def test_mismatched_shapes_are_refused(cpu, tmp_path, small_dark, rng):
-    flat = _write(tmp_path / "f.fits", rng.normal(1000, 30, (2, 64, 64)))
-    with pytest.raises(IPCInputError, match="different frame shapes"):
-        calibrate([small_dark], [flat], gain=2.0)
+def test_darks_and_flats_of_different_shapes_are_each_measured(cpu, tmp_path, small_dark, rng):
+    """A full-frame dark beside a subarray flat is one detector's data: each input is
+    measured on its own frame (the report records every input's shape)."""
+    frames = np.array([ipcgen.couple(rng.poisson(5000.0, (64, 64)).astype(float), "constant")
+                       for _ in range(4)])
+    flat = _write(tmp_path / "f.fits", frames)
+    res = calibrate([small_dark], [flat], gain=2.0, read_noise=0.0)
+    shapes = {item["role"]: item["shape"][-2:] for item in res["report"]["inputs"]}
+    assert shapes == {"dark": [96, 96], "flat": [64, 64]}
+    assert res["report"]["hot_pixels"]["found"] == 8
+    assert [bool(r.get("terms")) for r in res["report"]["flats"]["levels"]] == [True]
 
 
 def test_calibrate_cli_report_and_figures(cpu, cli, tmp_path, small_dark):

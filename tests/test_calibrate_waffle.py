@@ -39,8 +39,10 @@ def flat_set(request, tmp_path_factory):
 
 def _calibrated(flat_set):
     if "result" not in flat_set:
+        # the simulator collects each read in SUBSTEPS steps: said, as for any simulator
         flat_set["result"] = calibrate([], [flat_set["path"]], gain=None,
                                        refpix=flat_set["refpix"],
+                                       collection_steps=waffle.SUBSTEPS,
                                        report_path=str(flat_set["folder"] / "report.json"))
     return flat_set["result"]["model"], flat_set["result"]["report"]
 

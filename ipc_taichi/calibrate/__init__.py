@@ -3,10 +3,13 @@ reference files, and write the coupling-model file that ``decouple`` uses.
 
 - :mod:`.inputs`: products read as charge [e-] with their masks;
 - :mod:`.hotpixels`: isolated hot pixels, alpha(S, 0) per direction;
-- :mod:`.flats`: flat-field covariances, alpha(S, S) per axis (exact kernel relation);
+- :mod:`.flats`: flats of frames at one level, alpha(S, S) per axis (exact kernel relation);
+- :mod:`.ramps`: flat ramps: gain, classical non-linearity, brighter-fatter and
+  the IPC kernel with its signal dependence, told apart by their time structure;
 - :mod:`.reffiles`: JWST and Roman IPC reference files as a constant law;
-- :mod:`.lawfit`: geometry weights and a symmetric law chosen by evidence;
-- :mod:`.report`: the report (JSON) and figures;
+- :mod:`.lawfit`: geometry weights and a symmetric law chosen by held-out evidence;
+- :mod:`.transfer`: the law fitted on half the hot pixels, checked on the other half;
+- :mod:`.report`: the report (JSON), its console summary and figures;
 - :mod:`.workflow`: :func:`calibrate`, the whole procedure;
 - :mod:`.benchmark`: :func:`measure_calibrate`.
 

@@ -68,8 +68,8 @@ def summary_lines(document, model):
         lines.append(f"input ({item['role']}): {item['file']}: {what}")
     g = document.get("gain") or {}
     if g.get("measured") is not None:
-        given = "none" if g.get("given") is None else f"{g['given']:.4g} ({g.get('source')})"
-        lines.append(f"gain: given {given}; measured by the flat ramps "
+        used = "none" if g.get("used") is None else f"{g['used']:.4g} e-/DN ({g.get('source')})"
+        lines.append(f"gain: used {used}; measured by the flat ramps "
                      f"{_pm(g['measured'], g.get('error'), fmt='.4g')} e-/DN")
     lines.append(_bf_line(document.get("brighter_fatter") or {}))
     nl = document.get("classical_nonlinearity") or {}

@@ -54,13 +54,6 @@ BF_LIKELY_SIGMA = 3.0
 brighter-fatter is named as the likely cause."""
 
 
-def _check_shapes(inputs):
-    shapes = {f.path: f.shape2d for f in inputs}
-    if len(set(shapes.values())) > 1:
-        listing = ", ".join(f"{p} {s[0]}x{s[1]}" for p, s in shapes.items())
-        raise IPCInputError(f"inputs of different frame shapes: {listing}")
-
-
 class _HotPixels:
     """The darks' hot pixels: every measurement, the integrations they came
     from (for the transfer check), the signal bins of the full data."""
@@ -271,8 +264,8 @@ def _combine_kernels(measured):
 def _effects(flats, hot, gain_given):
     """The report's ``gain``, ``classical_nonlinearity``, ``brighter_fatter``
     and the flat ramps' evidence on non-linear IPC."""
-    out = {"gain": {"given": gain_given["value"], "source": gain_given["source"],
-                    "measured": None, "error": None},
+    out = {"gain": {"given": gain_given["given"], "used": gain_given["value"],
+                    "source": gain_given["source"], "measured": None, "error": None},
            "classical_nonlinearity": {"measured": False, "detected": False, "beta": None,
                                       "error": None, "significance": None,
                                       "form": "M = Q - beta Q^2 (Q collected, M measured, e-)"},
@@ -317,12 +310,16 @@ def _frames_rise_like_bf(flats, hot):
             "law (give flat ramps to measure both)")
 
 
-def _gain_given(files, gain):
-    """The gain the inputs were converted with and where it came from."""
+def _gain_used(files, gain):
+    """The gain the user gave, the one the inputs were converted with and where
+    it came from."""
+    given = None if gain is None else gain
     for f in files:
         if f.meta.get("gain") is not None:
-            return {"value": float(np.mean(f.meta["gain"])), "source": f.meta.get("gain_source")}
-    return {"value": None if gain is None else gain, "source": "given" if gain else None}
+            return {"given": given, "value": float(np.mean(f.meta["gain"])),
+                    "source": f.meta.get("gain_source")}
+    return {"given": given, "value": None,
+            "source": "unused: the inputs are in electrons" if gain is not None else None}
 
 
 def calibrate(darks=(), flats=(), reference=None, output=None, *, report_path=None,
@@ -385,13 +382,12 @@ def calibrate(darks=(), flats=(), reference=None, output=None, *, report_path=No
     options = {"hdu": hdu, "gain": gain, "dq_bits": dq_bits, "refpix": refpix, "bunit": bunit}
     dark_frames = [read_frames(p, role="dark", **options) for p in darks]
     flat_frames = [read_frames(p, role="flat", **options) for p in flats]
-    _check_shapes(dark_frames + flat_frames)
     not_measured, notes = [], []
     hot = _HotPixels(dark_frames, threshold, not_measured)
     rn = read_noise if read_noise is not None else hot.read_noise
     flat = (_Flats(flat_frames, rn, not_measured, notes, collection_steps) if flat_frames
             else None)
-    effects = _effects(flat, hot, _gain_given(dark_frames + flat_frames, gain))
+    effects = _effects(flat, hot, _gain_used(dark_frames + flat_frames, gain))
     bf_likely = _frames_rise_like_bf(flat, hot)
     if bf_likely:
         effects["brighter_fatter"].update(likely=True, note=bf_likely)
@@ -431,7 +427,8 @@ def calibrate(darks=(), flats=(), reference=None, output=None, *, report_path=No
                   "darks": [f.label for f in dark_frames], "flats": [f.label for f in flat_frames],
                   "reference": reference,
                   "units": sorted({f.units for f in dark_frames + flat_frames}),
-                  "gain": effects["gain"]["given"], "read_noise_e": rn,
+                  "gain": effects["gain"]["used"], "gain_source": effects["gain"]["source"],
+                  "read_noise_e": rn,
                   "read_noise_source": ("given" if read_noise is not None else
                                         "darks" if hot.read_noise is not None else "unknown (0)")}
     summary = {k: fit.get(k) for k in ("chosen", "law", "weights", "weight_errors", "assumed",
