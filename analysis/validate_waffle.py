@@ -12,8 +12,9 @@ kernel; plus a quadratic non-linearity 1.5 ppm/e-; tests/independent/waffle.py)
 it simulates the flat ramps (and, for solid-waffle, as many dark ramps: its
 analysis pairs every flat with a dark), runs
 
-- ours: ``ipc_taichi.calibrate.calibrate([], [ramps], refpix=4)``, the gain
-  from the file's GAIN keyword (timed);
+- ours: ``ipc_taichi.calibrate.calibrate([], [ramps], refpix=4,
+  collection_steps=2)`` (the simulator's SUBSTEPS), the gain from the file's
+  GAIN keyword (timed);
 - solid-waffle's: ``correlation_run.Config`` with the steps of its
   ``run_ir_all`` (advanced characterisation with the brighter-fatter
   correction, methods 2a, 2b and 3), on the simulator's own per-ramp files,
@@ -130,7 +131,8 @@ def ours_analysis(made, report_path, nreads, level):
     ipc_taichi.init()
     start = time.perf_counter()
     result = calibrate([], [made["path"]], gain=None, refpix=made["refpix"],
-                       report_path=report_path, overwrite=True)
+                       collection_steps=waffle.SUBSTEPS, report_path=report_path,
+                       overwrite=True)
     seconds = time.perf_counter() - start
     model, report = result["model"], result["report"]
     levels = level * np.arange(1, nreads) / (nreads - 1)
