@@ -106,6 +106,12 @@ def mean_misfit(residuals, masks):
     return worst
 
 
+def _own_cov(fit, name):
+    """The covariance of effect ``name``'s parameters (in the effect's order) in ``fit``."""
+    idx = [fit.keys.index((name, p.name)) for p in EFFECTS[name].params]
+    return fit.cov[np.ix_(idx, idx)]
+
+
 def gate(frames, model, parts, trials, probes, masks):
     """Why each fitted candidate may not be named: ``{effect: reason}``.
 
@@ -125,9 +131,9 @@ def gate(frames, model, parts, trials, probes, masks):
         why = contradiction(n, params)
         if why:
             contradicting[n] = "the fit contradicts the effect: " + why
-        elif implausible(n, params, model.readnoise):
+        elif implausible(n, params, model.readnoise, _own_cov(t[3], n)):
             contradicting[n] = ("the fitted strength is outside the physical range: "
-                                + implausible(n, params, model.readnoise))
+                                + implausible(n, params, model.readnoise, _own_cov(t[3], n)))
     residuals = frames.residuals(model, parts)[0]
     current = dipoles(residuals, probes)
     misfit = mean_misfit(residuals, masks)
