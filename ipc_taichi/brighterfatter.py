@@ -33,10 +33,10 @@ area). In one slice of the exposure the charge pixel ``p`` gains is ``f``
 times its area; each of its four boundaries, moved by ``s_pq`` into ``p``,
 takes the strip ``s_pq`` from it, whichever pixel's light the strip is
 said to carry (``upwind`` does not matter when the light is the same on
-both sides). So
+both sides). So::
 
-    ``A_p = 1 - sum_e c_e (2 Phi_p - Phi_{p+e} - Phi_{p-e})
-          = 1 - (L * (delta + r N) * Q)_p``
+    A_p = 1 - sum_e c_e (2 Phi_p - Phi_{p+e} - Phi_{p-e})
+        = 1 - (L * (delta + r N) * Q)_p
 
 with ``L = sum_e c_e (2 delta - delta_{+e} - delta_{-e})`` the discrete
 (anisotropic) Laplacian and ``*`` a convolution. Hence

@@ -84,7 +84,7 @@ from .fitting import (
     refit_all,
     sds_of,
 )
-from .gates import SIGNATURE_Z2, gate, signature
+from .gates import SIGNATURE_Z2, gate, refit_gate, signature
 from .labdata import LabData, read_lab
 from .model import CHAIN_ORDER, DetectorModel, effects_from_document
 from .report import brighter_fatter_section, describe_unexplained, json_diagnostics
@@ -304,8 +304,14 @@ def discover(data, seed=0, threshold=EVIDENCE_THRESHOLD, max_steps=MAX_STEPS,
         excess = current_gap - floor
         fraction = (current_gap - gap_after) / excess if excess > 0 else None
         refusal = None
+        unphysical = refit_gate(refit, {s["effect"] for s in steps} | {best}, lab.readnoise)
         if best in gone:
             refusal = (FRAGILE, f"is {FRAGILE}")
+        elif unphysical:
+            name, why = unphysical
+            whose = "its" if name == best else f"{name}'s"
+            refusal = (f"after the joint refit {whose} fit {why}",
+                       f"would leave {name} after the joint refit with a fit that {why}")
         elif above_floor > 3.0 and (fraction is None or fraction < MIN_EXPLAINED_FRACTION):
             refusal = (f"it would remove only {100 * (fraction or 0.0):.1f} % of the excess",
                        f"removes only {100 * (fraction or 0.0):.1f} % of the gap's excess over "
