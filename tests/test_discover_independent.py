@@ -3,8 +3,10 @@
 forms that differ from the project's). The workflow sees only the FITS
 file; what was hidden is known to the test alone."""
 
+import numpy as np
 import pytest
 
+from ipc_taichi.brighterfatter import kernel_plausibility
 from ipc_taichi.discover import discover
 from tests.independent import peerlab  # noqa: E402  (GalSim: listed for the test extra)
 
@@ -33,14 +35,29 @@ def test_null_file_names_nothing(tmp_path):
     _complete(report)
 
 
+# GalSim's SiliconSensor recomputes the pixel boundaries every ``nrecalc``
+# photons: at 100000 a hot pixel of up to 60 ke- (drawn alone) never sees its
+# own charge, an isolated pixel without brighter-fatter; at 10000 a 50 ke-
+# spot loses 2.1 % of its charge (2.6 % with every photon), as a real sensor does
+SILICON_BF = {"strength": 1.0, "diffusion_factor": 0.0, "nrecalc": 10000}
+# GalSim's sensor's own kernel centre, measured with the area picture
+# (ipc_taichi.brighterfatter; docs/discover.md), per electron
+SILICON_CENTRE = -1.01e-6
+
+
 def test_peer_silicon_brighter_fatter(tmp_path):
     # GalSim's SiliconSensor: pixel boundaries moved by the field of the charge
-    # already collected (no diffusion); our form must fit it to the floor
-    report = _run(tmp_path, 21, n=48, levels=(15000.0, 40000.0),
-                  silicon={"strength": 1.0, "diffusion_factor": 0.0, "nrecalc": 100000})
+    # already collected (no diffusion); our form must fit it to the floor, and
+    # its kernel must be a real detector's, with the sensor's own centre term
+    report = _run(tmp_path, 21, n=48, levels=(15000.0, 40000.0), silicon=SILICON_BF)
     assert report["missing_effects"] == ["brighter_fatter"]
     params, _ = _final(report, "brighter_fatter")
     assert params["deflection_x_at_50ke"] > 0.005 and params["deflection_y_at_50ke"] > 0.005
+    kernel = np.array(report["brighter_fatter"]["kernel"])
+    error = np.array(report["brighter_fatter"]["kernel_error"])
+    assert kernel_plausibility(kernel, error) is None
+    # measured -0.97e-6 +- 0.18e-6; the hot pixels here see 80 % of their own field
+    assert kernel[2, 2] == pytest.approx(SILICON_CENTRE, rel=0.35)
     _complete(report)
 
 

@@ -209,7 +209,7 @@ def test_physical_range_and_mean_misfit_gates(rng):
         "a response map of RMS 7.9 %")
     assert implausible("flat_field", {"response_variance": 0.02 ** 2}) is None
     bf = {"deflection_x_at_50ke": 0.187, "deflection_y_at_50ke": 0.187}
-    assert "18.7 % at 50 ke-" in implausible("brighter_fatter", bf)
+    assert "lose 18.7 % of its charge" in implausible("brighter_fatter", bf)
     bf = {"deflection_x_at_50ke": 0.02, "deflection_y_at_50ke": 0.03}
     assert implausible("brighter_fatter", bf) is None
     assert implausible("diagonal_ipc", {"alpha_diag": 0.5}) is None

@@ -13,6 +13,9 @@ from ipc_taichi.discover.fitting import only_with_smooth_light
 from tests.independent import peerlab
 
 DIFFUSION = {"strength": 1e-6, "diffusion_factor": 0.5, "nrecalc": 10 ** 9}
+# brighter-fatter: boundaries recomputed every 10000 photons, so that a hot pixel
+# (drawn alone, at most 60 ke-) sees its own charge (tests/test_discover_independent.py)
+SILICON_BF = {"strength": 1.0, "diffusion_factor": 0.0, "nrecalc": 10000}
 VARIANCE_EFFECTS = {"flat_field", "excess_read_noise"}
 
 
@@ -85,12 +88,17 @@ def test_silicon_diffusion_with_pixel_totals_is_named_but_incomplete(tmp_path):
     assert any(u.startswith("charge_diffusion is in the model, but") and "OVERSAMP" in u
                for u in report["unexplained"]), report["unexplained"]
     assert any("flat_field" in u and "physical range" in u for u in report["unexplained"])
+    # the brighter-fatter fitted beside the diffusion (8 % at 50 ke-, reach at
+    # its bound) is a kernel no detector has: a pixel's own charge would leave
+    # it unchanged while its neighbours' shrink it
+    bf = [u for u in report["unexplained"] if u.startswith("not named brighter_fatter")]
+    assert len(bf) == 1 and "strongest at its own pixel" in bf[0], report["unexplained"]
     _not_below_floor(report)
 
 
 def test_silicon_brighter_fatter_with_sub_pixel_scene(tmp_path):
     report = _run(tmp_path, seed=21, n=48, hot="mixed", levels=(15000.0, 40000.0),
-                  silicon={"strength": 1.0, "diffusion_factor": 0.0, "nrecalc": 100000},
+                  silicon=SILICON_BF,
                   oversample=5)
     assert report["missing_effects"] == ["brighter_fatter"]
     bf = report["final_model"]["effects"]["brighter_fatter"]
@@ -101,7 +109,7 @@ def test_silicon_brighter_fatter_with_sub_pixel_scene(tmp_path):
 @pytest.mark.slow
 def test_silicon_brighter_fatter_and_diffusion_with_sub_pixel_scene(tmp_path):
     report = _run(tmp_path, seed=23, n=64, hot="mixed", levels=(15000.0, 40000.0),
-                  silicon={"strength": 1.0, "diffusion_factor": 0.5, "nrecalc": 100000},
+                  silicon={**SILICON_BF, "diffusion_factor": 0.5},
                   oversample=5)
     assert sorted(report["missing_effects"]) == ["brighter_fatter", "charge_diffusion"]
     sigma = report["final_model"]["effects"]["charge_diffusion"]["sigma_px"]
@@ -112,10 +120,11 @@ def test_silicon_brighter_fatter_and_diffusion_with_sub_pixel_scene(tmp_path):
 @pytest.mark.slow
 def test_silicon_brighter_fatter_and_diffusion_with_pixel_totals(tmp_path):
     # the same physics in pixel totals: a brighter-fatter fitted there absorbs
-    # the star and spot centres (22 % at 50 ke-, ten times the truth), so it
-    # is not named, and the verdict says what would let it be judged
+    # the star and spot centres (a kernel centre of -8.6e-6 per electron, an
+    # isolated 50 ke- pixel losing 22 %: eight times the sensor's -1.0e-6),
+    # so it is not named, and the verdict says what would let it be judged
     report = _run(tmp_path, seed=23, n=64, hot="mixed", levels=(15000.0, 40000.0),
-                  silicon={"strength": 1.0, "diffusion_factor": 0.5, "nrecalc": 100000})
+                  silicon={**SILICON_BF, "diffusion_factor": 0.5})
     assert report["missing_effects"] == ["charge_diffusion"]
     assert report["complete"] is False
     bf = [u for u in report["unexplained"] if u.startswith("not named brighter_fatter")]

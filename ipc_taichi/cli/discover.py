@@ -29,8 +29,9 @@ def add_parsers(sub):
                    help="minimum delta BIC to add an effect (default 25)")
     p.add_argument("--overwrite", action="store_true", help="replace REPORT.json if it exists")
     p.add_argument("--model", metavar="FILE", default=None,
-                   help="start from this coupling-model file (law, geometry, edge; as written "
-                        "by 'ipc-taichi calibrate') instead of the file's IPCLAW")
+                   help="start from this coupling-model file (law, geometry, edge, and the "
+                        "brighter-fatter kernel and non-linearity calibrate measured; as "
+                        "written by 'ipc-taichi calibrate') instead of the file's IPCLAW")
     add_quiet_argument(p, "progress lines")
     add_runtime_arguments(p)
     p.set_defaults(run=run_discover)
@@ -54,8 +55,9 @@ def add_parsers(sub):
     s.add_argument("--law", default=None,
                    help="the starting model's law, written to IPCLAW (default donlon2018)")
     s.add_argument("--model", metavar="FILE", default=None,
-                   help="a coupling-model file: the frames are made with its law, geometry "
-                        "and edge, and IPCLAW holds its law (instead of --law)")
+                   help="a coupling-model file: the frames are made with its law, geometry, "
+                        "edge, brighter-fatter kernel and non-linearity, and IPCLAW holds its "
+                        "law (instead of --law)")
     s.add_argument("--oversample", type=int, default=1, metavar="N",
                    help="write SCENE on a grid N times finer than MEASURED (OVERSAMP = N; "
                         "default 1: pixel totals)")
@@ -93,12 +95,12 @@ def run_discover(args):
     _init(args)
     say = None if args.quiet else (lambda line: print(f"discover: {line}", file=sys.stderr))
     threshold = EVIDENCE_THRESHOLD if args.threshold is None else args.threshold
-    start = None
-    if args.model is not None:
+    if args.model is not None:  # fail before computing: the file and its sections
+        from ..discover.model import effects_from_document
         from ..model import CouplingModel
 
-        start = CouplingModel.load(args.model)  # fail before computing
-    result = discover(args.data, seed=args.seed, threshold=threshold, log=say, start=start)
+        effects_from_document(CouplingModel.load(args.model, with_document=True)[1], args.model)
+    result = discover(args.data, seed=args.seed, threshold=threshold, log=say, start=args.model)
     if args.figures:
         write_figures(result, args.figures)
     if args.report:
@@ -152,19 +154,19 @@ def run_simulate_lab(args):
     effects = _parse_effects(args.effect)
     if args.oversample < 1:
         raise IPCInputError(f"--oversample {args.oversample}: must be an integer >= 1")
-    coupling = None
+    coupling = document = None
     if args.model is not None:
         from ..model import CouplingModel
 
         if args.law is not None:
             raise IPCInputError(f"--model {args.model} holds the law; do not also give --law")
-        coupling = CouplingModel.load(args.model)
+        coupling, document = CouplingModel.load(args.model, with_document=True)
     _init(args)
     simulate_lab(args.output, effects, readnoise=args.readnoise, seed=args.seed,
                  law=args.law or "donlon2018", pairs=args.pairs, shape=_parse_size(args.size),
                  shot_noise=not args.no_shot_noise, nan_fraction=args.nan_fraction,
                  dtype=np.float32 if args.float32 else np.float64, overwrite=args.overwrite,
-                 oversample=args.oversample, coupling=coupling)
+                 oversample=args.oversample, coupling=coupling, document=document)
     lab_law = _ipclaw_written(args.output)
     print(f"wrote {args.output}: {args.pairs} SCENE/MEASURED pairs, IPCLAW {lab_law}, "
           f"READNOIS {args.readnoise:g}"

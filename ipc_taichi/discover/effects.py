@@ -63,16 +63,23 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import ndtr
 
+from ..brighterfatter import (
+    BF_REFERENCE,
+    kernel_error_from_deflection,
+    kernel_from_deflection,
+    kernel_plausibility,
+)
 from ..laws import donlon2018
 
 __all__ = ["Param", "Effect", "EFFECTS", "EFFECT_NAMES", "SEPARATION", "DEGENERATE",
            "diffuse", "diffusion_weights", "brighter_fatter", "nonlinearity", "reciprocity",
-           "shift_scene", "derived_params", "contradiction", "implausible", "PHYSICAL_LIMITS",
+           "shift_scene", "derived_params", "contradiction", "implausible", "bf_kernel",
+           "PHYSICAL_LIMITS",
            "NL_REFERENCE", "BF_REFERENCE",
            "RECIPROCITY_REFERENCE", "LAW_SCALE_DIFF", "LAW_SCALE_LEVEL"]
 
 NL_REFERENCE = 50000.0  # e-: the signal at which the non-linearity deficit is quoted
-BF_REFERENCE = 50000.0  # e-: likewise for the brighter-fatter deflection
+# BF_REFERENCE (ipc_taichi.brighterfatter): likewise for the brighter-fatter deflection
 RECIPROCITY_REFERENCE = 1.0  # e-: response 1 at this signal (GalSim's base-flux convention)
 BF_STEPS = 8  # collection is integrated in this many equal slices of the exposure
 # the signal-dependent family's scales: the paper's, from the one place they are written
@@ -242,18 +249,33 @@ def contradiction(effect, params):
 
 # The largest strength a real detector shows, per effect (beyond it a fit is
 # absorbing something else): HgCdTe and CCD response maps (quantum efficiency
-# and gain together) vary by a few per cent RMS; the brighter-fatter effect
-# moves a few per cent of a full pixel's charge (the mean of the x and y
-# deflections at 50 ke-); a read noise is not several times what the
-# detector's own characterisation (READNOIS) says.
-PHYSICAL_LIMITS = {"flat_field": 0.05, "brighter_fatter": 0.10, "excess_read_noise": 3.0}
+# and gain together) vary by a few per cent RMS; a read noise is not several
+# times what the detector's own characterisation (READNOIS) says. The
+# brighter-fatter effect is judged by its kernel (ipc_taichi.brighterfatter:
+# KERNEL_LIMITS and kernel_plausibility), whose size and shape real detectors bound.
+PHYSICAL_LIMITS = {"flat_field": 0.05, "excess_read_noise": 3.0}
 
 
-def implausible(effect, params, readnoise=None):
+def bf_kernel(params, cov=None):
+    """The kernel (5x5, per electron) of ``brighter_fatter`` parameters and, with
+    ``cov`` (their covariance, in the effect's parameter order), its errors
+    (:mod:`ipc_taichi.brighterfatter`); ``upwind`` 1 and ``reach`` 0 where absent."""
+    p = {"upwind": 1.0, "reach": 0.0, **params}
+    kernel = kernel_from_deflection(p["deflection_x_at_50ke"], p["deflection_y_at_50ke"],
+                                    p["reach"], p["upwind"])
+    if cov is None:
+        return kernel, None
+    keys = tuple(q.name for q in EFFECTS["brighter_fatter"].params)
+    return kernel, kernel_error_from_deflection(p, cov, keys)
+
+
+def implausible(effect, params, readnoise=None, cov=None):
     """Why fitted ``params`` lie outside the physical range of ``effect``
     (:data:`PHYSICAL_LIMITS`; for ``excess_read_noise`` a multiple of the
-    header's ``readnoise``), or ``None``. Such a fit is not named: its
-    strength says it absorbs a misfit of another kind."""
+    header's ``readnoise``; for ``brighter_fatter`` the kernel the parameters
+    amount to, :func:`ipc_taichi.brighterfatter.kernel_plausibility`, with
+    ``cov`` the parameters' covariance for its errors), or ``None``. Such a fit
+    is not named: its strength or shape says it absorbs a misfit of another kind."""
     limit = PHYSICAL_LIMITS.get(effect)
     if effect == "excess_read_noise" and readnoise:
         total = math.sqrt(max(readnoise ** 2 + params["excess_variance_e2"], 0.0))
@@ -266,10 +288,9 @@ def implausible(effect, params, readnoise=None):
             return (f"a response map of RMS {100 * rms:.1f} % (a real one is at most "
                     f"{100 * limit:g} %)")
     if effect == "brighter_fatter":
-        d = 0.5 * (params["deflection_x_at_50ke"] + params["deflection_y_at_50ke"])
-        if d > limit:
-            return (f"a deflection of {100 * d:.1f} % at 50 ke- (a real detector's is at most "
-                    f"{100 * limit:g} %)")
+        why = kernel_plausibility(*bf_kernel(params, cov))
+        if why:
+            return f"its kernel is not a real detector's: {why}"
     return None
 
 

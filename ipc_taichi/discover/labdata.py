@@ -312,7 +312,7 @@ def ipclaw(law):
 
 def simulate_lab(path, effects=None, readnoise=12.0, seed=0, law="donlon2018", pairs=2,
                  shape=(128, 128), shot_noise=True, nan_fraction=0.0, dtype=np.float64,
-                 overwrite=False, oversample=1, coupling=None):
+                 overwrite=False, oversample=1, coupling=None, document=None):
     """Write a lab file whose MEASURED frames hide ``effects``.
 
     Parameters
@@ -327,6 +327,10 @@ def simulate_lab(path, effects=None, readnoise=12.0, seed=0, law="donlon2018", p
         Replaces ``law``: the frames are made with its law, geometry and
         edge (:meth:`DetectorModel.from_coupling`) plus ``effects``, and
         ``IPCLAW`` holds its law (:func:`ipclaw`).
+    document : dict, optional
+        The coupling-model file's document: its measured ``brighter_fatter``
+        and ``classical_nonlinearity`` sections make the frames too
+        (:func:`~.model.effects_from_document`), unless ``effects`` names them.
     nan_fraction : float
         Fraction of pixels of each MEASURED frame set to NaN (bad pixels).
     dtype : numpy dtype
@@ -347,7 +351,7 @@ def simulate_lab(path, effects=None, readnoise=12.0, seed=0, law="donlon2018", p
         raise IPCInputError(f"unknown effect(s) {', '.join(sorted(unknown))}; "
                             f"known: {', '.join(EFFECTS)}")
     start = None if coupling is None else DetectorModel.from_coupling(coupling, readnoise,
-                                                                       shot_noise)
+                                                                       shot_noise, document)
     if start is not None:
         law = ipclaw(coupling.law)
     data_law = get_law(law)

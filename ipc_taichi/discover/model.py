@@ -55,8 +55,9 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from ..brighterfatter import deflection_from_kernel
 from ..detector import collect, read_noise, read_out
-from ..errors import GeometryError
+from ..errors import GeometryError, IPCInputError
 from ..geometry import Geometry
 from ..laws import ParametricLaw, get_law
 from ..model import CouplingModel
@@ -64,6 +65,7 @@ from .effects import (
     EFFECTS,
     LAW_SCALE_DIFF,
     LAW_SCALE_LEVEL,
+    NL_REFERENCE,
     brighter_fatter,
     diffuse,
     nonlinearity,
@@ -72,7 +74,8 @@ from .effects import (
 )
 from .sampling import block_sum, boundary_arrivals, isolated_points, shift_fine
 
-__all__ = ["DetectorModel", "CHAIN_ORDER", "SUBPIXEL_EFFECTS", "WITHIN_PIXEL", "is_constant_law"]
+__all__ = ["DetectorModel", "CHAIN_ORDER", "SUBPIXEL_EFFECTS", "WITHIN_PIXEL", "is_constant_law",
+           "effects_from_document"]
 
 CHAIN_ORDER = ("misregistration", "reciprocity_failure", "charge_diffusion", "dark_current",
                "brighter_fatter", "flat_field", "shot_noise", "ipc", "classical_nonlinearity",
@@ -95,6 +98,73 @@ def is_constant_law(law):
     """True for a signal-independent law (``constant:A``)."""
     return (getattr(law, "kind", "") == "parametric" and law.amp_diff == 0.0
             and law.amp_level == 0.0)
+
+
+def _section_kernel(section, key, source):
+    """A 5x5 array of finite numbers from a model file's ``brighter_fatter`` section
+    (``None`` when the key is absent)."""
+    if section.get(key) is None:
+        return None
+    try:
+        value = np.asarray(section[key], dtype=np.float64)
+    except (TypeError, ValueError):
+        value = np.zeros(0)
+    if value.shape != (5, 5) or not np.all(np.isfinite(value)):
+        raise IPCInputError(f"{source}: brighter_fatter.{key} must be a 5x5 array of finite "
+                            f"numbers (per electron, [2+dy][2+dx])")
+    return value
+
+
+def effects_from_document(document, source="model file"):
+    """The detector effects a coupling-model file's measured sections amount to.
+
+    ``brighter_fatter`` (a kernel ``a``, per electron, ``pixel area 1 + sum_d
+    a(d) Q(p+d)``) becomes discover's boundary-shift parameters through
+    :func:`ipc_taichi.brighterfatter.deflection_from_kernel`, the kernel's
+    errors weighting its terms; ``classical_nonlinearity`` (``M = Q - beta
+    Q^2``) becomes ``deficit_at_50ke = beta x 50 ke-`` with no cubic term.
+
+    Returns
+    -------
+    (dict, dict)
+        ``{effect: params}`` and ``{effect: what was converted}`` for the
+        report (the section's values, the parameters, and for the kernel what
+        the boundary picture could not hold). Both empty without sections.
+
+    Raises
+    ------
+    IPCInputError
+        A section that is not what calibrate writes (one line naming ``source``).
+    """
+    effects, notes = {}, {}
+    section = (document or {}).get("brighter_fatter")
+    if section is not None:
+        if not isinstance(section, dict) or section.get("units", "1/electron") != "1/electron":
+            raise IPCInputError(f"{source}: brighter_fatter must be an object with a 5x5 "
+                                "\"kernel\" in units of 1/electron")
+        kernel = _section_kernel(section, "kernel", source)
+        if kernel is None:
+            raise IPCInputError(f"{source}: brighter_fatter has no \"kernel\"")
+        converted = deflection_from_kernel(kernel, _section_kernel(section, "kernel_error",
+                                                                   source))
+        effects["brighter_fatter"] = {k: converted[k] for k in (
+            "deflection_x_at_50ke", "deflection_y_at_50ke", "upwind", "reach")}
+        notes["brighter_fatter"] = {"kernel": kernel.tolist(), "params": effects[
+            "brighter_fatter"], "not_held": converted["residual"],
+            "outside_5x5": converted["outside_5x5"],
+            "unrepresented": converted["unrepresented"], "note": converted["note"]}
+    section = (document or {}).get("classical_nonlinearity")
+    if section is not None:
+        try:
+            beta = float(section["beta"])
+        except (TypeError, KeyError, ValueError):
+            raise IPCInputError(f"{source}: classical_nonlinearity must give \"beta\" (per "
+                                "electron, M = Q - beta Q^2)") from None
+        effects["classical_nonlinearity"] = {"deficit_at_50ke": beta * NL_REFERENCE,
+                                             "cubic_term": 0.0}
+        notes["classical_nonlinearity"] = {"beta": beta,
+                                           "params": effects["classical_nonlinearity"]}
+    return effects, notes
 
 
 def _colouring(offsets):
@@ -148,14 +218,19 @@ class DetectorModel:
 
     # -- building ---------------------------------------------------------
     @classmethod
-    def from_coupling(cls, coupling, readnoise, shot_noise=True):
+    def from_coupling(cls, coupling, readnoise, shot_noise=True, document=None):
         """The starting model of a :class:`~ipc_taichi.model.CouplingModel`
         (a coupling-model file): its law and edge, and its geometry as the
         coupling effects it amounts to (``anisotropic_ipc``, ``diagonal_ipc``,
         ``second_neighbor_ipc``, with absolute couplings at zero signal).
+        With the file's ``document`` (:meth:`~ipc_taichi.model.CouplingModel.load`
+        with ``with_document``), its measured ``brighter_fatter`` and
+        ``classical_nonlinearity`` sections join as those effects
+        (:func:`effects_from_document`).
 
         Raises :class:`~ipc_taichi.errors.GeometryError` for a geometry that is
-        not of that symmetric form.
+        not of that symmetric form, :class:`~ipc_taichi.errors.IPCInputError`
+        for a section that is not what calibrate writes.
         """
         g = coupling.geometry
         h, v = g.weight(0, 1), g.weight(1, 0)
@@ -172,6 +247,7 @@ class DetectorModel:
             effects["diagonal_ipc"] = {"alpha_diag": diag * alpha0}
         if second:
             effects["second_neighbor_ipc"] = {"alpha_second": second * alpha0}
+        effects.update(effects_from_document(document)[0])
         return cls(coupling.law, readnoise, shot_noise, effects, coupling.edge)
 
     def with_effects(self, effects):

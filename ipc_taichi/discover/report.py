@@ -28,12 +28,15 @@ import os
 
 import numpy as np
 
+from ..brighterfatter import isolated_loss
 from ..errors import IPCInputError
 from ..fitsio import atomic_output
 from .diagnostics import SIGNAL_BINS
+from .effects import bf_kernel
 
 __all__ = ["write_report", "write_figures", "to_json", "summary_line", "json_diagnostics",
-           "describe_unexplained", "SUBPIXEL_LIMITS", "UNEXPLAINED_Z"]
+           "describe_unexplained", "brighter_fatter_section", "SUBPIXEL_LIMITS",
+           "UNEXPLAINED_Z"]
 
 UNEXPLAINED_Z = 5.0  # a pattern is described when it stands out at 5 sigma
 
@@ -223,6 +226,26 @@ def write_figures(discovery, directory):
     _save(fig, paths[4])
     plt.close(fig)
     return paths
+
+
+def brighter_fatter_section(params, cov=None, source="fitted"):
+    """The report's ``brighter_fatter``: the model's boundary-shift parameters as
+    the kernel ``ipc-taichi calibrate`` measures (the model file's section),
+    so a lab can compare the two (:mod:`ipc_taichi.brighterfatter`).
+
+    ``cov`` is the parameters' covariance (the effect's order) for
+    ``kernel_error``; ``source`` says where the parameters came from.
+    """
+    kernel, error = bf_kernel(params, cov)
+    return {"kernel": kernel.tolist(), "kernel_error": None if error is None else error.tolist(),
+            "units": "1/electron",
+            "convention": "pixel area 1 + sum_d a(d) Q(p+d); a[2+dy][2+dx]",
+            "params": dict(params), "source": source,
+            "isolated_loss_at_50ke": isolated_loss(kernel),
+            "picture": "the kernel of the boundary shifts for light smooth across neighbouring "
+                       "pixels, where the two pictures agree for any upwind "
+                       "(ipc_taichi.brighterfatter.kernel_from_deflection); terms beyond the "
+                       "nearest neighbours come from reach alone"}
 
 
 def json_diagnostics(d):

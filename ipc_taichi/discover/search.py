@@ -49,6 +49,7 @@ loop.
 
 
 import math
+import os
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -68,7 +69,7 @@ from .diagnostics import (
     residuals_by_probe,
     stacked_windows,
 )
-from .effects import SEPARATION
+from .effects import EFFECTS, SEPARATION
 from .fitting import (
     EVIDENCE_THRESHOLD,
     candidates,
@@ -83,10 +84,10 @@ from .fitting import (
     refit_all,
     sds_of,
 )
-from .gates import SIGNATURE_Z2, gate, signature
+from .gates import SIGNATURE_Z2, gate, refit_gate, signature
 from .labdata import LabData, read_lab
-from .model import CHAIN_ORDER, DetectorModel
-from .report import describe_unexplained, json_diagnostics
+from .model import CHAIN_ORDER, DetectorModel, effects_from_document
+from .report import brighter_fatter_section, describe_unexplained, json_diagnostics
 
 __all__ = ["discover", "Discovery", "EVIDENCE_THRESHOLD", "MIN_EXPLAINED_FRACTION",
            "COMPLETE_SIGMAS", "FLOOR_SIMULATIONS", "MAX_STEPS"]
@@ -148,6 +149,38 @@ def _scatters_below_floor(frames, model, parts, gap_now, seed, n_sim=8):
     return (floor - gap_now) / sigma if sigma > 0 else 0.0
 
 
+def _starting_model(lab, start):
+    """The starting model and what a coupling-model file's measured sections put
+    in it (``{effect: what was converted}``, empty without them)."""
+    if start is None:
+        return lab.model(), {}
+    document, source = None, "model file"
+    if isinstance(start, (str, os.PathLike)):
+        source = os.fspath(start)
+        start = CouplingModel.load(start, with_document=True)
+    if isinstance(start, tuple):  # CouplingModel.load(path, with_document=True)
+        start, document = start
+    seeded = effects_from_document(document, source)[1]
+    return DetectorModel.from_coupling(start, lab.readnoise, lab.shot_noise, document), seeded
+
+
+def _bf_report(model, final_fit, steps, seeded):
+    """The report's ``brighter_fatter`` kernel (``None`` when the final model has none)."""
+    if "brighter_fatter" not in model.effects:
+        return None
+    params = model.effects["brighter_fatter"]
+    keys = [("brighter_fatter", p.name) for p in EFFECTS["brighter_fatter"].params]
+    cov, source = None, "the model file's kernel, as discover's parameters (not refitted)"
+    if final_fit is not None and all(k in final_fit.keys for k in keys):
+        idx = [final_fit.keys.index(k) for k in keys]
+        cov = final_fit.cov[np.ix_(idx, idx)]
+        source = ("fitted" if any(s["effect"] == "brighter_fatter" for s in steps) else
+                  "the model file's kernel, refitted with the effects named after it")
+    elif "brighter_fatter" not in seeded:
+        source = "fitted"
+    return brighter_fatter_section(params, cov, source)
+
+
 def _diagnostics(frames, model, probes, masks, parts=None):
     res, means = frames.residuals(model, parts)
     stacks, counts = stacked_windows(res, probes)
@@ -179,17 +212,23 @@ def discover(data, seed=0, threshold=EVIDENCE_THRESHOLD, max_steps=MAX_STEPS,
         Minimum delta BIC for an effect to be added.
     log : callable, optional
         Called with one progress line per step.
-    start : CouplingModel or str, optional
-        The starting coupling (a :class:`~ipc_taichi.model.CouplingModel` or
-        a coupling-model file, :meth:`~ipc_taichi.model.CouplingModel.load`),
-        replacing the file's ``IPCLAW`` (:meth:`DetectorModel.from_coupling`).
+    start : CouplingModel, (CouplingModel, dict) or str, optional
+        The starting coupling (a :class:`~ipc_taichi.model.CouplingModel`,
+        the pair :meth:`~ipc_taichi.model.CouplingModel.load` returns with
+        ``with_document``, or a coupling-model file), replacing the file's
+        ``IPCLAW`` (:meth:`DetectorModel.from_coupling`). A file's measured
+        ``brighter_fatter`` kernel and ``classical_nonlinearity`` join the
+        starting model as those effects (:func:`~.model.effects_from_document`;
+        the report's ``seeded_from_model_file`` says what was converted).
 
     Returns
     -------
     Discovery
         ``.report`` is the JSON report (``baseline_gap``, ``steps``,
         ``missing_effects``, ``final_gap``, ``gap_floor``, ``gap_floor_sigma``,
-        ``complete``, ``unexplained``, ...).
+        ``complete``, ``unexplained``, ...); ``brighter_fatter``, when the
+        final model holds that effect, gives it as the kernel calibrate
+        measures (:func:`~.report.brighter_fatter_section`).
     """
     lab = data if isinstance(data, LabData) else read_lab(data)
     if lab.readnoise == 0 and not lab.shot_noise:
@@ -204,11 +243,7 @@ def discover(data, seed=0, threshold=EVIDENCE_THRESHOLD, max_steps=MAX_STEPS,
         for s, v in zip(block_s, block_v):
             probes.append(find_probes(s, v))
             masks.append(probe_masks(s, v, probes[-1]))
-    if start is None:
-        model = lab.model()
-    else:
-        coupling = CouplingModel.load(start) if isinstance(start, str) else start
-        model = DetectorModel.from_coupling(coupling, lab.readnoise, lab.shot_noise)
+    model, seeded = _starting_model(lab, start)
     parts = frames.predict(model)
     baseline = _diagnostics(frames, model, probes, masks, parts)
     current_gap = baseline["gap"]
@@ -269,8 +304,14 @@ def discover(data, seed=0, threshold=EVIDENCE_THRESHOLD, max_steps=MAX_STEPS,
         excess = current_gap - floor
         fraction = (current_gap - gap_after) / excess if excess > 0 else None
         refusal = None
+        unphysical = refit_gate(refit, {s["effect"] for s in steps} | {best}, lab.readnoise)
         if best in gone:
             refusal = (FRAGILE, f"is {FRAGILE}")
+        elif unphysical:
+            name, why = unphysical
+            whose = "its" if name == best else f"{name}'s"
+            refusal = (f"after the joint refit {whose} fit {why}",
+                       f"would leave {name} after the joint refit with a fit that {why}")
         elif above_floor > 3.0 and (fraction is None or fraction < MIN_EXPLAINED_FRACTION):
             refusal = (f"it would remove only {100 * (fraction or 0.0):.1f} % of the excess",
                        f"removes only {100 * (fraction or 0.0):.1f} % of the gap's excess over "
@@ -360,6 +401,8 @@ def discover(data, seed=0, threshold=EVIDENCE_THRESHOLD, max_steps=MAX_STEPS,
         "final_model": {"law": model.ipc_law().describe(), "effects": final_params,
                         "uncertainties": final_errors},
         "stop": stop,
+        "brighter_fatter": _bf_report(model, final_fit, steps, seeded),
+        "seeded_from_model_file": seeded,
         "evidence_threshold": {"delta_bic": threshold,
                                "min_explained_fraction": MIN_EXPLAINED_FRACTION,
                                "complete_within_floor_sigmas": COMPLETE_SIGMAS},
