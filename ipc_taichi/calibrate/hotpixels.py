@@ -160,8 +160,8 @@ def measure_events(groups, positions, mask=None, background=None):
     dict of ndarray, one value per measurement (event x group, skipped ones
     dropped): ``signal`` (total excess [e-]), ``background`` [e-],
     ``fraction`` (shape (m, 25): the 5x5 box, row-major, offsets -2..2),
-    ``event`` (index into ``positions``), ``group``, ``pixel`` (``y * nx +
-    x``: the same id for the same pixel in every integration).
+    ``event`` (index into ``positions``), ``group``, ``pixel`` (the id
+    ``y * nx + x``: the same for the same pixel in every integration).
     """
     groups = np.asarray(groups, dtype=np.float64)
     if groups.ndim == 2:
