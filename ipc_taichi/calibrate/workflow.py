@@ -458,21 +458,31 @@ def calibrate(darks=(), flats=(), reference=None, output=None, *, report_path=No
 
 
 def _nonlinear_ipc(fit, ramp_evidence):
-    """Non-linear IPC is claimed only when held-out data choose a law richer
-    than a constant (with brighter-fatter already removed from flat ramps)."""
+    """Non-linear IPC is claimed where held-out data choose a law richer than
+    a constant (brighter-fatter already removed from flat ramps), or where
+    the flat ramps' joint fit finds the IPC terms changing with signal beside
+    brighter-fatter; the second without the first is said: the law written
+    then does not follow it."""
     choice = fit.get("law_choice") or {}
     chosen = fit.get("chosen")
-    detected = bool(choice) and chosen != "constant"
-    margin = (choice.get("margin_against_constant") or {}).get(chosen) if detected else None
-    if not choice:
+    by_law = bool(choice) and chosen != "constant"
+    by_ramps = bool(ramp_evidence and ramp_evidence.get("detected"))
+    margin = (choice.get("margin_against_constant") or {}).get(chosen) if by_law else None
+    if not choice and not by_ramps:
         note = "not tested (no measured points)"
-    elif detected:
+    elif by_law:
         note = (f"the law {chosen} predicts held-out data better than a constant by "
                 f"{margin:.1f} standard errors")
+    elif by_ramps:
+        note = (f"the flat ramps' joint fit finds it beside brighter-fatter "
+                f"({ramp_evidence['significance']:+.1f} sigma, "
+                f"{ramp_evidence['slope_per_10ke']:+.3g} per 10 ke- in x + y), but the "
+                "per-level points are too noisy for the law to follow it: the law written "
+                "is a constant (more pixels or integrations would pin its shape)")
     else:
         note = "a constant predicts held-out data as well as any signal-dependent law"
-    return {"detected": detected, "significance": margin, "note": note,
-            "flat_ramps": ramp_evidence}
+    return {"detected": by_law or by_ramps, "significance": margin, "law_follows": by_law,
+            "note": note, "flat_ramps": ramp_evidence}
 
 
 def _sections(effects, fit):
