@@ -14,6 +14,12 @@ import ipc_taichi
 from tests import kernel_reference
 
 RECORDED = os.path.join(kernel_reference.HERE, "kernel_reference.json")
+ALTERNATES = os.path.join(kernel_reference.HERE, "kernel_reference_alternates.json")
+"""Second digests of the same kernels on another CPU: the table law's decouple
+outputs (8 cases) came out different on an Intel Xeon with AVX-512 from the AMD EPYC
+they were recorded on, already at commit 40f64e6 (before that session changed any
+code): the JIT compiles the bilinear lookup differently there. Every other case is the
+same bytes on both."""
 
 
 @pytest.mark.slow
@@ -24,6 +30,9 @@ def test_outputs_bit_identical_to_recorded():
         now = kernel_reference.record()
     finally:
         ipc_taichi.init("cpu", "f64")
+    with open(ALTERNATES) as f:
+        alternates = json.load(f)
     assert sorted(now) == sorted(recorded)
-    changed = [key for key in sorted(now) if now[key] != recorded[key]]
+    changed = [key for key in sorted(now)
+               if now[key] != recorded[key] and now[key] not in alternates.get(key, [])]
     assert changed == [], f"{len(changed)} of {len(now)} outputs changed: {changed[:6]}"
