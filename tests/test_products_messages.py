@@ -269,4 +269,8 @@ def test_paths_sent_to_workers_are_absolute(cli, tmp_path, rng, monkeypatch):
         str(tmp_path / "in0.fits"), str(tmp_path / "out" / "in0_decoupled.fits"),
         str(tmp_path / "in1.fits"), str(tmp_path / "out" / "in1_decoupled.fits")]
     assert sent["options"]["options"].gain == str(tmp_path / "gain.fits")
-    assert sum(line.startswith("ipc-taichi: decoupled ") for line in r.stderr.splitlines()) == 2
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 3 and lines[2] == "decoupled 2 files into out"
+    for k in range(2):  # said with the names as given
+        assert lines[k].startswith(f"ipc-taichi: decoupled in{k}.fits -> "
+                                   f"{os.path.join('out', f'in{k}_decoupled.fits')}: law")

@@ -255,9 +255,7 @@ def run_decouple(args):
     except OSError as exc:
         raise IPCInputError(f"{args.output_dir}: cannot create the output directory "
                             f"({exc.strerror})") from None
-    # absolute: the workers of a cluster do not share this process's working directory
-    pairs = [(os.path.abspath(p), os.path.abspath(output_name(p, args.output_dir, args.suffix)))
-             for p in args.paths]
+    pairs = [(p, output_name(p, args.output_dir, args.suffix)) for p in args.paths]
     seen = {}
     for src, dst in pairs:
         if dst in seen:
@@ -331,9 +329,21 @@ def _run_many(pairs, args, model):
             gpus = None if args.gpus is None else (
                 [] if args.gpus.strip() == "all" else
                 [g.strip() for g in args.gpus.split(",") if g.strip()])
+            # absolute: the workers do not share this process's working directory; the
+            # lines said name the files as they were given
+            sent = [(os.path.abspath(src), os.path.abspath(dst)) for src, dst in pairs]
+            given = dict(zip(sent, pairs))
+
+            def as_given(res):
+                src, dst = given.get((res["input"], res["output"]), (res["input"], res["output"]))
+                if not res["ok"] and res["error"].startswith(res["input"]):
+                    res["error"] = src + res["error"][len(res["input"]):]
+                res.update(input=src, output=dst)
+                report(res)
+
             client = local_client(args.scheduler, workers, gpus=gpus)
             try:
-                results = decouple_files(pairs, options, client, progress=report)
+                results = decouple_files(sent, options, client, progress=as_given)
             finally:
                 close_client(client)
     except KeyboardInterrupt:
