@@ -14,6 +14,7 @@ truncated file at the output path, and an existing file is only replaced with
 
 import json
 import os
+import re
 import tempfile
 
 import numpy as np
@@ -22,7 +23,11 @@ from .errors import IPCInputError
 from .interrupts import stop_requested
 
 __all__ = ["read_image", "write_image", "parse_hdu", "atomic_output", "check_output_path",
-           "write_json"]
+           "write_json", "history_lines", "HISTORY_WIDTH", "cannot_write"]
+
+HISTORY_WIDTH = 70
+"""Characters of text per HISTORY card: under the 72 a card holds, so astropy
+never cuts a line (it cuts at a fixed column, inside a word or a number)."""
 
 # structural and scaling keywords that must not be copied onto a new float image
 _STRUCTURAL = {"SIMPLE", "XTENSION", "BITPIX", "NAXIS", "EXTEND", "PCOUNT", "GCOUNT",
@@ -96,6 +101,26 @@ def read_image(path, hdu=None):
     return data, header, label
 
 
+def history_lines(text, width=HISTORY_WIDTH):
+    """``text`` as HISTORY lines of at most ``width`` characters, each cut
+    after a space or a ``;`` (never inside a word or a number; a single word
+    longer than a line is cut where it must); lines after the first are
+    indented by two spaces."""
+    pieces = [p for p in re.split(r"(?<=[ ;])", str(text)) if p]
+    lines, line = [], ""
+    for piece in pieces:
+        if line and len(line + piece.rstrip()) > width:
+            lines.append(line.rstrip())
+            line = "  "
+        line += piece
+        while len(line.rstrip()) > width:  # one word longer than a line
+            lines.append(line[:width])
+            line = "  " + line[width:]
+    if line.strip() or not lines:
+        lines.append(line.rstrip())
+    return lines
+
+
 def check_output_path(path, overwrite):
     """Refuse a directory, and an existing file unless ``overwrite``."""
     if os.path.isdir(path):
@@ -105,6 +130,14 @@ def check_output_path(path, overwrite):
     parent = os.path.dirname(os.path.abspath(path))
     if not os.path.isdir(parent):
         raise IPCInputError(f"{path}: directory {parent} does not exist")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise IPCInputError(f"{path}: cannot be written (directory {parent} is not writable)")
+
+
+def cannot_write(path, exc):
+    """The one-line error for an OS error while writing ``path``: it names the
+    user's output, never the temporary file beside it."""
+    return IPCInputError(f"{path}: cannot be written ({exc.strerror or type(exc).__name__})")
 
 
 class atomic_output:
@@ -118,8 +151,11 @@ class atomic_output:
     def __enter__(self):
         check_output_path(self.path, self.overwrite)
         parent = os.path.dirname(os.path.abspath(self.path))
-        fd, self.tmp = tempfile.mkstemp(prefix=".tmp-", suffix=os.path.basename(self.path),
-                                        dir=parent)
+        try:  # a read-only file system or a forbidden directory: name the output
+            fd, self.tmp = tempfile.mkstemp(prefix=".tmp-", suffix=os.path.basename(self.path),
+                                            dir=parent)
+        except OSError as exc:
+            raise cannot_write(self.path, exc) from None
         os.close(fd)
         os.unlink(self.tmp)  # writers create it themselves
         return self.tmp
@@ -139,10 +175,13 @@ class atomic_output:
             except OSError as exc:  # name the user's file, not the temporary one
                 if os.path.exists(self.tmp):
                     os.unlink(self.tmp)
-                raise IPCInputError(f"{self.path}: cannot be written "
-                                    f"({exc.strerror or type(exc).__name__})") from None
-        elif os.path.exists(self.tmp):
-            os.unlink(self.tmp)
+                raise cannot_write(self.path, exc) from None
+        else:
+            if os.path.exists(self.tmp):
+                os.unlink(self.tmp)
+            if isinstance(exc, OSError) and not isinstance(exc, IPCInputError) and \
+                    self.tmp in str(exc):  # a writer's error naming the temporary file
+                raise cannot_write(self.path, exc) from None
         return False
 
 
@@ -160,8 +199,9 @@ def output_header(header, keywords=None, history=()):
             out.append(card, end=True)
     for key, (value, comment) in (keywords or {}).items():
         out[key] = (value, comment)
-    for line in history:
-        out.add_history(line)
+    for text in history:
+        for line in history_lines(text):
+            out.add_history(line)
     return out
 
 

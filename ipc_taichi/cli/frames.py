@@ -36,7 +36,7 @@ from .options import (
     model_is_explicit,
 )
 
-__all__ = ["add_parsers", "run_couple", "run_decouple", "output_name"]
+__all__ = ["add_parsers", "run_couple", "run_decouple", "output_name", "summary_line"]
 
 EXIT_FAILED, EXIT_UNCONVERGED = 1, 3
 
@@ -54,6 +54,11 @@ def _add_product_arguments(p):
     g.add_argument("--saturation", type=float, default=None, metavar="LEVEL",
                    help="pixels at or above LEVEL (data units) are left out like flagged ones "
                         "(their charge is unknown)")
+    g.add_argument("--keep-unphysical", action="store_true",
+                   help="keep unflagged pixels no detector can hold (a charge outside "
+                        "-2e4..1e6 e-) in the correction, as before: the law spreads them to "
+                        "their neighbours (default: masked like flagged pixels, counted in "
+                        "IPCNBAD; infinite values are always masked)")
     g.add_argument("--refpix", type=int, default=None, metavar="N",
                    help="reference border of N pixels, never changed, zero-signal neighbours "
                         "(default: the REFERENCE_PIXEL flags, else the observatory's: 4 for a "
@@ -127,7 +132,8 @@ def add_parsers(sub):
         if name == "decouple":
             add_iteration_arguments(p)
         add_runtime_arguments(p)
-        add_quiet_argument(p, "progress bar, summary or CUDA notice")
+        add_quiet_argument(p, "summary line, progress bar or CUDA notice (warnings and errors "
+                              "are still said)")
         p.set_defaults(run=run_couple if name == "couple" else run_decouple)
 
 
@@ -138,6 +144,7 @@ def _product_options(args):
                    precision=args.precision, dq_bits=args.dq_bits, refpix=args.refpix,
                    gain=args.gain, exptime=args.exptime, bunit=args.bunit, output_dtype=dtype,
                    pedestal=args.pedestal, coadds=args.coadds, saturation=args.saturation,
+                   unphysical="keep" if args.keep_unphysical else "mask",
                    model_chosen=model_is_explicit(args),
                    # a model file's edge rule is what a plain image gets; a detector
                    # product's frame decides its own (a measured coupling says nothing
@@ -174,10 +181,42 @@ def _report(summary, src):
     return EXIT_UNCONVERGED
 
 
+def summary_line(summary, src, dst, operation, model_file=None):
+    """The one line said on stderr for each file done: the law (or model
+    file), iterations, convergence, HDUs changed, seconds."""
+    done = "decoupled" if operation == "decouple" else "coupled"
+    how = (f"model {os.path.basename(str(model_file))} (law {summary['law']})"
+           if model_file is not None else f"law {summary['law']}")
+    parts = [f"{how}, edge {summary['edge']}"]
+    if operation == "decouple":
+        converged = summary.get("converged")
+        state = ("fixed count (--tol 0)" if converged is None else
+                 "converged" if converged else "NOT converged")
+        parts.append(f"{summary['iterations']} iterations, {state}")
+    hdus = summary["hdus"]
+    count = hdus if isinstance(hdus, int) else len(hdus)
+    frames = summary.get("frames", 1)
+    parts.append(f"{count} HDU{'s' if count != 1 else ''} changed"
+                 + (f" ({frames} frames)" if frames > 1 else ""))
+    bad = summary.get("masked_unphysical", 0)
+    if bad:
+        parts.append(f"{bad} unphysical pixel{'s' if bad != 1 else ''} masked")
+    parts.append(f"{summary['seconds']:.1f} s")
+    return f"ipc-taichi: {done} {src} -> {dst}: {', '.join(parts)}"
+
+
+def _say(summary, src, dst, operation, args, write=None):
+    if args.quiet:
+        return
+    line = summary_line(summary, src, dst, operation, args.model)
+    (write or (lambda text: print(text, file=sys.stderr, flush=True)))(line)
+
+
 def run_couple(args):
     model = model_from_args(args)
     src, dst = _single_pair(args, "couple")
-    couple_file(src, dst, model=model, options=_product_options(args))
+    summary = couple_file(src, dst, model=model, options=_product_options(args))
+    _say(summary, src, dst, "couple", args)
     return 0
 
 
@@ -205,6 +244,7 @@ def run_decouple(args):
         src, dst = _single_pair(args, "decouple")
         summary = decouple_file(src, dst, model=model,
                                 options=_product_options(args).replace(progress=not args.quiet))
+        _say(summary, src, dst, "decouple", args)
         return _report(summary, src)
     if args.output is not None:
         raise IPCInputError("decouple: give either --output OUT.fits or -o OUTDIR")
@@ -224,6 +264,17 @@ def run_decouple(args):
             raise IPCInputError(f"{src}: would be overwritten by its own output")
         seen[dst] = src
     return _run_many(pairs, args, model)
+
+
+def _absolute_files(options):
+    """``options`` with the files they name (a gain or pedestal image) made
+    absolute: a worker's working directory is not this process's."""
+    changes = {}
+    for name in ("gain", "pedestal"):
+        value = getattr(options, name)
+        if isinstance(value, (str, os.PathLike)) and os.path.exists(value):
+            changes[name] = os.path.abspath(value)
+    return options.replace(**changes) if changes else options
 
 
 def _remove_temporaries(pairs, since):
@@ -250,10 +301,13 @@ def _run_many(pairs, args, model):
     def report(res):
         if not res["ok"]:
             print(f"ipc-taichi: error: {res['error']}", file=sys.stderr, flush=True)
+        else:
+            _say(res, res["input"], res["output"], "decouple", args,
+                 write=None if bar is None else bar.write)
         if bar is not None:
             bar.update(1)
 
-    options = {"model": model, "options": _product_options(args)}
+    options = {"model": model, "options": _absolute_files(_product_options(args))}
     since = time.time() - 1
     try:
         if len(pairs) == 1 and not args.scheduler:
@@ -275,9 +329,21 @@ def _run_many(pairs, args, model):
             gpus = None if args.gpus is None else (
                 [] if args.gpus.strip() == "all" else
                 [g.strip() for g in args.gpus.split(",") if g.strip()])
+            # absolute: the workers do not share this process's working directory; the
+            # lines said name the files as they were given
+            sent = [(os.path.abspath(src), os.path.abspath(dst)) for src, dst in pairs]
+            given = dict(zip(sent, pairs))
+
+            def as_given(res):
+                src, dst = given.get((res["input"], res["output"]), (res["input"], res["output"]))
+                if not res["ok"] and res["error"].startswith(res["input"]):
+                    res["error"] = src + res["error"][len(res["input"]):]
+                res.update(input=src, output=dst)
+                report(res)
+
             client = local_client(args.scheduler, workers, gpus=gpus)
             try:
-                results = decouple_files(pairs, options, client, progress=report)
+                results = decouple_files(sent, options, client, progress=as_given)
             finally:
                 close_client(client)
     except KeyboardInterrupt:

@@ -27,8 +27,13 @@ science array. The conventions (also in ``docs/products.md``):
 - **Pedestal.** The law is evaluated at the charge on the node, which
   includes what was there before the first read (a zeroth read):
   :func:`correct_frames` with ``pedestal``.
-- **Unphysical values** that nothing flags are reported
-  (:func:`warn_unphysical`): the law would spread them to their neighbours.
+- **Unphysical values** that nothing flags (an infinite value, or a charge
+  outside :data:`PHYSICAL_RANGE`) are masked like flagged pixels (they keep
+  their values and neither give nor take charge), counted
+  (:class:`Unphysical`; the ``IPCNBAD`` keyword) and said in one line per
+  science array. ``unphysical="keep"`` (``--keep-unphysical``) leaves the
+  finite ones in, as before: the law then spreads them to their neighbours.
+  NaN is not counted: it is the documented bad-pixel marker, always left out.
 """
 
 import re
@@ -44,7 +49,8 @@ from .missions import DEFAULT_DQ, JWST_DQ_FLAGS, REFERENCE_PIXEL
 
 __all__ = ["ProductWarning", "parse_dq_bits", "untrusted", "unusable_gain", "science_region",
            "choose_edge", "charge_scale", "correct_frames", "Units", "RATE_UNITS",
-           "CHARGE_UNITS", "REFERENCE_PIXEL", "warn_unphysical", "PHYSICAL_RANGE"]
+           "CHARGE_UNITS", "REFERENCE_PIXEL", "warn_unphysical", "PHYSICAL_RANGE", "unphysical",
+           "Unphysical", "UNPHYSICAL_CHOICES"]
 
 
 class ProductWarning(UserWarning):
@@ -127,22 +133,93 @@ def unusable_gain(gain):
 PHYSICAL_RANGE = (-2e4, 1e6)
 """Electrons a pixel of one exposure can plausibly hold (an H2RG/H4RG node holds
 about 1e5; a few 1e4 below zero is noise and bias residue). Unflagged values
-outside it are reported: the law would spread them to the neighbours."""
+outside it, and infinite ones, are *unphysical*: masked by default
+(:class:`Unphysical`)."""
+
+UNPHYSICAL_CHOICES = ("mask", "keep")
+"""What is done with unphysical pixels: masked (the default), or kept in the
+correction (the finite ones; an infinite value is never coupled)."""
+
+
+def unphysical(charge):
+    """Pixels holding a charge no detector can hold: infinite, or finite and
+    outside :data:`PHYSICAL_RANGE` (electrons). NaN is not included (it is the
+    bad-pixel marker, always left out)."""
+    c = np.asarray(charge)
+    with np.errstate(invalid="ignore"):
+        return np.isinf(c) | (c < PHYSICAL_RANGE[0]) | (c > PHYSICAL_RANGE[1])
+
+
+class Unphysical:
+    """The unflagged unphysical pixels of one science array, frame by frame:
+    counted, masked (``action="mask"``) or kept (``"keep"``), said in one line
+    (:meth:`warn`)."""
+
+    def __init__(self, action="mask"):
+        if action not in UNPHYSICAL_CHOICES:
+            raise IPCInputError(f"unphysical={action!r}: give one of "
+                                f"{', '.join(UNPHYSICAL_CHOICES)}")
+        self.action = action
+        self.count = 0
+        self.infinite = 0
+        self.frames = set()  # where they were found (file, HDU, frame)
+        self.first = None  # (where, y, x, value in electrons)
+
+    @property
+    def masked(self):
+        """Pixels masked because they are unphysical (0 when kept)."""
+        return self.count if self.action == "mask" else self.infinite
+
+    def add(self, charge, mask, where, offset=(0, 0)):
+        """Count the unflagged unphysical pixels of ``charge`` (a frame or a
+        window of one; ``mask``: the pixels already left out; ``offset``: the
+        window's first pixel in the frame). Returns the pixels to mask
+        (None when none)."""
+        bad = unphysical(charge)
+        if mask is not None:
+            bad &= ~mask
+        n = int(bad.sum())
+        if not n:
+            return None
+        self.count += n
+        self.infinite += int(np.isinf(np.asarray(charge)[bad]).sum())
+        self.frames.add(where)
+        if self.first is None:
+            y, x = np.argwhere(bad)[0]
+            self.first = (where, int(y) + offset[0], int(x) + offset[1], float(charge[y, x]))
+        if self.action == "keep":  # an infinite value cannot couple: masked whatever
+            bad &= np.isinf(np.asarray(charge))
+        return bad if bad.any() else None
+
+    def warn(self, label, stacklevel=3):
+        """One line saying what was found and what was done (nothing when none)."""
+        if not self.count:
+            return
+        where, y, x, value = self.first
+        frames = f" in {len(self.frames)} frames" if len(self.frames) > 1 else ""
+        at = f"{where} " if where != label else ""
+        found = (f"{label}: {self.count} unflagged pixel(s){frames} hold values no detector can "
+                 f"hold (outside {PHYSICAL_RANGE[0]:g}..{PHYSICAL_RANGE[1]:g} e-, or infinite; "
+                 f"first at {at}y={y}, x={x}: {value:.4g} e-)")
+        if self.action == "mask":
+            done = ("masked: they keep their values and neither give nor take charge "
+                    "(IPCNBAD); flag them in DQ, or give --saturation LEVEL")
+        else:
+            finite = self.count - self.infinite
+            done = "kept as asked (--keep-unphysical): " + "; ".join(
+                ([f"the {finite} finite one(s) give their charge to their neighbours"]
+                 if finite else [])
+                + ([f"the {self.infinite} infinite one(s) are masked (they cannot couple)"]
+                   if self.infinite else []))
+        warnings.warn(f"{found}: {done}", ProductWarning, stacklevel=stacklevel)
 
 
 def warn_unphysical(charge, mask, where):
-    """Warn (once per frame) about unflagged pixels far outside :data:`PHYSICAL_RANGE`."""
-    with np.errstate(invalid="ignore"):
-        bad = (charge < PHYSICAL_RANGE[0]) | (charge > PHYSICAL_RANGE[1])
-    if mask is not None:
-        bad &= ~mask
-    n = int(bad.sum())
-    if n:
-        y, x = np.argwhere(bad)[0]
-        warnings.warn(f"{where}: {n} unflagged pixel(s) hold charge outside "
-                      f"{PHYSICAL_RANGE[0]:g}..{PHYSICAL_RANGE[1]:g} e- (first at y={y}, x={x}: "
-                      f"{charge[y, x]:.4g} e-); flag them in DQ, or give --saturation LEVEL",
-                      ProductWarning, stacklevel=3)
+    """Warn about the unflagged unphysical pixels of one frame (kept: the
+    behaviour before they were masked; see :class:`Unphysical`)."""
+    record = Unphysical("keep")
+    record.add(charge, mask, where)
+    record.warn(where, stacklevel=3)
 
 
 def science_region(shape, refpix=None, reference=None):
@@ -325,7 +402,7 @@ def charge_scale(units, gain, exptime, label, time_source="EFFINTTM", coadds=1,
         scale = scale / n
         parts.append(f"divided by {n} coadded exposures")
     text = (f"{units.text or 'electrons (no BUNIT)'} -> electrons"
-            + (f" with {', '.join(parts)}" if parts else ""))
+            + (f" ({'; '.join(parts)})" if parts else ""))
     return scale, text
 
 
@@ -347,7 +424,7 @@ class named:
 
 def correct_frames(data, operation, model, *, mask=None, region=None, scale=1.0,
                    out=None, max_iter=iteration.MAX_ITER, tol=iteration.TOL, arch=None,
-                   precision=None, label="data", pedestal=None):
+                   precision=None, label="data", pedestal=None, unphysical="mask"):
     """Couple or decouple every 2-D frame of ``data`` by the product rules.
 
     The pure correction function under every product reader/writer.
@@ -381,6 +458,10 @@ def correct_frames(data, operation, model, *, mask=None, region=None, scale=1.0,
         ``D(M + P) - D(P)``, couple ``C(S + P) - C(P)``, so the frame keeps its
         meaning (charge since the pedestal) while alpha is evaluated at the
         charge really on the node.
+    unphysical : {"mask", "keep"} or Unphysical
+        What is done with unflagged pixels no detector can hold (see
+        :class:`Unphysical`; pass one to read the count afterwards). Said in
+        one warning line for the whole array.
 
     Returns
     -------
@@ -403,6 +484,8 @@ def correct_frames(data, operation, model, *, mask=None, region=None, scale=1.0,
     base = None if pedestal is None else np.asarray(pedestal, dtype=np.float64)[region]
     settings = dict(operation=operation, model=model, max_iter=max_iter, tol=tol, arch=arch,
                     precision=precision)
+    record = unphysical if isinstance(unphysical, Unphysical) else Unphysical(unphysical)
+    offset = (region[0].start or 0, region[1].start or 0)
     cached = {}
     infos = []
     for k in range(frames.shape[0]):
@@ -412,15 +495,16 @@ def correct_frames(data, operation, model, *, mask=None, region=None, scale=1.0,
         m = untrusted([], 0, measured.shape,
                       None if masks is None else masks[k][region],
                       gain=s_in if s.ndim == 2 else None)
+        bad = record.add(measured if base is None else measured + base, m, where, offset)
+        if bad is not None:
+            m = bad if m is None else (m | bad)
         good = np.isfinite(measured) if m is None else (np.isfinite(measured) & ~m)
         if not good.any():
             raise IPCInputError(f"{where}: no finite, unmasked pixel to {operation} "
-                                "(all NaN or flagged)")
+                                "(all NaN, flagged or unphysical)")
         if base is None:
-            warn_unphysical(measured, m, where)
             result, info = _run(measured, m, where, **settings)
         else:
-            warn_unphysical(measured + base, m, where)
             key = None if m is None else m.tobytes()
             if key not in cached:  # the pedestal through the same law, once per mask
                 cached[key] = _run(base, m, where, **settings)[0]
@@ -431,6 +515,7 @@ def correct_frames(data, operation, model, *, mask=None, region=None, scale=1.0,
         target = flat_out[k][region]
         target[...] = result if m is None else np.where(m, frames[k][region], result)
         infos.append(info)
+    record.warn(label)
     return out, infos
 
 

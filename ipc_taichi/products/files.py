@@ -1,5 +1,6 @@
 """One entry point for any product file: FITS or Roman ASDF, by its content."""
 
+import time
 import warnings
 
 from ..model import CouplingModel
@@ -8,7 +9,12 @@ from .missions import is_asdf
 from .options import ProductOptions
 from .roman import process_asdf
 
-__all__ = ["process_product", "decouple_file", "couple_file", "written_by_ipc_taichi"]
+__all__ = ["process_product", "decouple_file", "couple_file", "written_by_ipc_taichi",
+           "SUMMARY_KEYS"]
+
+SUMMARY_KEYS = ("iterations", "converged", "frames", "hdus", "law", "edge", "masked_unphysical",
+                "seconds")
+"""What :func:`decouple_file` returns (small, picklable: it comes back from Dask workers)."""
 
 
 def process_product(input_path, output_path, operation="decouple", model=None, options=None,
@@ -16,10 +22,14 @@ def process_product(input_path, output_path, operation="decouple", model=None, o
     """Couple or decouple a product file: Roman ASDF
     (:func:`~ipc_taichi.products.roman.process_asdf`) or FITS
     (:func:`~ipc_taichi.products.fits.process_fits`); same options
-    (:class:`~ipc_taichi.products.options.ProductOptions`), same summary."""
+    (:class:`~ipc_taichi.products.options.ProductOptions`), same summary, with
+    ``seconds`` (wall-clock time of the whole call, reading and writing included)."""
     run = process_asdf if is_asdf(input_path) else process_fits
-    return run(input_path, output_path, operation, model=model,
-               options=ProductOptions.from_kwargs(options, **kwargs))
+    start = time.perf_counter()
+    summary = run(input_path, output_path, operation, model=model,
+                  options=ProductOptions.from_kwargs(options, **kwargs))
+    summary["seconds"] = time.perf_counter() - start
+    return summary
 
 
 def decouple_file(input_path, output_path, law=None, geometry=None, edge=None, model=None,
@@ -29,7 +39,10 @@ def decouple_file(input_path, output_path, law=None, geometry=None, edge=None, m
     CouplingModel or a model file) or ``law``/``geometry``/``edge``; giving
     both is refused, as :func:`ipc_taichi.decouple` does; giving neither means
     the paper's law (refused on instrument products). Returns a small
-    picklable summary ``{"iterations", "converged", "frames"}``."""
+    picklable summary: ``iterations``, ``converged``, ``frames``, ``hdus``
+    (the science HDUs changed), ``law``, ``edge`` (the law's name and the edge
+    rule applied), ``masked_unphysical`` (unflagged pixels masked as
+    unphysical) and ``seconds``."""
     if model is not None:  # a model or its file; law/geometry/edge beside it are refused
         model = CouplingModel.resolve(law, geometry, edge, model=model)
     elif law is not None:
@@ -40,8 +53,7 @@ def decouple_file(input_path, output_path, law=None, geometry=None, edge=None, m
         raise ValueError("decouple_file: geometry= and edge= need law= (or give model=)")
     res = process_product(input_path, output_path, "decouple", model=model, options=options,
                           **kwargs)
-    return {"iterations": res["iterations"], "converged": res["converged"],
-            "frames": res["frames"]}
+    return {key: res[key] for key in SUMMARY_KEYS}
 
 
 def couple_file(input_path, output_path, model=None, options=None, **kwargs):

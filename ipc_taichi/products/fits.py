@@ -239,7 +239,10 @@ def process_fits(input_path, output_path, operation="decouple", *, model=None, o
     -------
     dict
         ``output``, ``label``, ``frames``, ``iterations`` (max over frames),
-        ``converged`` (all frames; ``None`` for couple or ``tol = 0``), ``infos``.
+        ``converged`` (all frames; ``None`` for couple or ``tol = 0``), ``infos``,
+    ``hdus`` (labels of the science HDUs changed), ``law`` and ``edge`` (the
+    law's name and the edge rule of the first), ``masked_unphysical``
+    (unflagged pixels masked as unphysical, all HDUs: ``IPCNBAD``).
     """
     options = ProductOptions.from_kwargs(options, **kwargs)
     model, options = resolve_model(model, options)
@@ -284,9 +287,11 @@ def process_fits(input_path, output_path, operation="decouple", *, model=None, o
                 _, _, offset = places[p["index"]]
                 out = np.memmap(tmp, dtype=p["dtype"].newbyteorder(">"), mode="r+",
                                 offset=offset, shape=p["shape"])
+                record = cv.Unphysical(options.unphysical)
                 try:
                     prov.infos[p["index"]] = _correct(input_path, hdul, p, out, bits, options,
-                                                      operation)
+                                                      operation, record)
+                    prov.unphysical[p["index"]] = record.masked
                     out.flush()
                 finally:
                     del out
@@ -296,18 +301,19 @@ def process_fits(input_path, output_path, operation="decouple", *, model=None, o
     return {"output": output_path, "label": plans[0]["label"], "frames": len(infos),
             "infos": infos, "hdus": [p["label"] for p in plans],
             "iterations": max(i.iterations for i in infos) if operation == "decouple" else 0,
-            "converged": converged}
+            "converged": converged, "law": plans[0]["model"].law.name,
+            "edge": plans[0]["model"].edge, "masked_unphysical": sum(prov.unphysical.values())}
 
 
-def _correct(input_path, hdul, plan, out, bits, options, operation):
+def _correct(input_path, hdul, plan, out, bits, options, operation, record):
     flags = streams.Flags(input_path, hdul, plan["flags"], bits, plan["shape"], plan["inside"],
                           options.saturation, options.tile)
     if options.tile:
         return streams.tiled(input_path, hdul, plan["index"], out, flags, plan["region"],
-                             plan["scale"], plan["model"], options, plan["label"])
+                             plan["scale"], plan["model"], options, plan["label"], record)
     return streams.whole(input_path, hdul, plan["index"], out, flags, plan["region"],
                          plan["scale"], plan["model"], options, plan["label"],
-                         pedestal=plan["pedestal"], operation=operation)
+                         pedestal=plan["pedestal"], operation=operation, record=record)
 
 
 def _rewrite_headers(tmp, places, headers, output_path):

@@ -4,6 +4,8 @@ One reader for FITS, Roman and the ``stpipe`` step; which pixels a per-pixel
 gain cannot convert is :func:`ipc_taichi.products.conventions.unusable_gain`.
 """
 
+import os
+
 import numpy as np
 
 from ..errors import IPCInputError
@@ -32,6 +34,10 @@ def read_frame(gain, shape2d, what):
         return float(text)
     except ValueError:
         pass
+    if not os.path.isfile(text):
+        why = "a directory" if os.path.isdir(text) else "no such file"
+        raise IPCInputError(f"--{what} {text}: neither a number nor a readable {what} file "
+                            f"({why})")
     if is_asdf(text):
         try:
             import roman_datamodels.datamodels as rdm
@@ -46,7 +52,13 @@ def read_frame(gain, shape2d, what):
         if image.shape == _ROMAN_FULL_FRAME and tuple(shape2d) == (4088, 4088):
             image = image[4:-4, 4:-4]
     else:
-        with open_fits(text, memmap=False) as hdul:
+        try:
+            hdul = open_fits(text, memmap=False)
+        except IPCInputError as exc:
+            reason = str(exc).removeprefix(f"{text}: ")
+            raise IPCInputError(f"--{what} {text}: neither a number nor a readable {what} file "
+                                f"({reason})") from None
+        with hdul:
             image = next((np.array(h.data, dtype=np.float64) for h in hdul
                           if h.is_image and h.data is not None), None)
     if image is None or image.shape != tuple(shape2d):

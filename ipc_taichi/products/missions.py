@@ -3,13 +3,13 @@
 One place decides what kind of file a product is and reads its observatory's
 conventions from it (``docs/products.md`` says the same in words):
 
-- **Instrument products.** A FITS file whose ``TELESCOP`` is JWST or HST (or,
-  without ``TELESCOP``, whose ``INSTRUME`` is one of their near-IR
-  instruments), and every Roman ASDF product. The paper's law is never applied
-  to one silently: without ``--law`` or ``--model`` it is refused
-  (:func:`check_model_chosen`). Other files with a ``TELESCOP`` or
-  ``INSTRUME`` (e.g. a ground H2RG) are *detector products*: the edge rule is
-  chosen from them, the law is the user's.
+- **Instrument products.** A FITS file with a ``TELESCOP`` or an
+  ``INSTRUME`` of any observatory (JWST, HST, a ground H2RG such as LBT
+  LUCI2, ...), and every Roman ASDF product. The paper's law was measured on
+  one test detector: it is never applied to an instrument's data silently;
+  without ``--law`` or ``--model`` it is refused (:func:`check_model_chosen`).
+  Such a file is also a *detector product*: the edge rule is chosen from it.
+  JWST, HST and Roman products get their observatory's conventions below.
 - **Reference borders** of full frames: JWST 4 pixels (2048x2048; a subarray
   by its ``SUBSTRT``/``SUBSIZE`` keywords), HST WFC3/IR 5 pixels (the
   ``_ima`` frames of 1024, 522, 266, 138 and 74 pixels; ``_flt`` frames are
@@ -79,8 +79,8 @@ class Mission:
         (a plain image that says nothing about where it comes from).
     instrument : str
     instrument_product : bool
-        A JWST, HST or Roman product: the law must be chosen (see
-        :func:`check_model_chosen`).
+        A product of an instrument (any ``TELESCOP`` or ``INSTRUME``, or
+        Roman): the law must be chosen (see :func:`check_model_chosen`).
     dq_flags : dict
         Flag name -> bit value (the file's ``DQ_DEF`` first).
     """
@@ -147,7 +147,7 @@ def recognise(primary, science=None, hdul=None):
     else:
         name, flags = telescope, dict(JWST_DQ_FLAGS)
     flags.update(dq_def(hdul) if hdul is not None else {})
-    return Mission(name, instrument, name in ("JWST", "HST", "Roman"), flags)
+    return Mission(name, instrument, bool(name or instrument), flags)
 
 
 def roman_mission():

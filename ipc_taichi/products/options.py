@@ -56,6 +56,11 @@ class ProductOptions:
         Exposures summed in each frame (default: ``NCOADDS``/``NDIT``, else 1).
     saturation : float, optional
         Pixels at or above this value (data units) are left out like flagged ones.
+    unphysical : {"mask", "keep"}
+        Unflagged pixels no detector can hold (infinite, or a charge outside
+        :data:`ipc_taichi.products.conventions.PHYSICAL_RANGE`): masked (the
+        default; counted in ``IPCNBAD``) or kept in the correction (the
+        finite ones; ``--keep-unphysical``).
     model_chosen : bool
         The caller chose the law (``--law``/``--model``, or a model passed to
         the library); False: the paper's law by default, refused on instrument
@@ -81,6 +86,7 @@ class ProductOptions:
     pedestal: object = "auto"
     coadds: int = None
     saturation: float = None
+    unphysical: str = "mask"
     model_chosen: bool = True
     edge_chosen: bool = True
 

@@ -5,14 +5,17 @@ One place for the record written into FITS headers and Roman ``meta``:
 - the primary header holds the run: ``S_IPC`` (the JWST step-status
   keyword), ``IPCOP``, the model (``IPCLAW``, ``IPCGEOM``, ``IPCEDGE`` and
   ``IPCEDGER``, why that edge rule), ``IPCNHDU`` (science HDUs changed),
-  ``IPCHDU`` (the first, by index and name), ``IPCDQBIT``, ``IPCPED`` (the
+  ``IPCHDU`` (the first, by index and name), ``IPCDQBIT``, ``IPCNBAD``
+  (unflagged pixels masked as unphysical: infinite, or a charge no detector
+  can hold; all HDUs), ``IPCPED`` (the
   pedestal), ``IPCCOADD``, ``IPCARCH``, ``IPCPREC``, and for decouple
   ``IPCITER``, ``IPCCONV``, ``IPCTOL``, ``IPCMAXIT``, ``IPCREMOV`` (what
   was removed: IPC only); HISTORY lines (the model, what was removed, each
   HDU's units, one line per frame);
 - each changed science HDU holds its own: ``IPCOP``, ``IPCHDU``,
   ``IPCREFPX`` (the science region as a 1-based FITS section
-  ``[x1:x2,y1:y2]``), ``IPCTIME`` (seconds; 0 when not a rate), and for
+  ``[x1:x2,y1:y2]``), ``IPCTIME`` (seconds; 0 when not a rate), ``IPCNBAD``
+  (this HDU's unphysical pixels masked), and for
   decouple ``IPCITER``, ``IPCCONV``.
 
 ``S_IPC`` is written last, after the work (a killed run's temporary file
@@ -25,6 +28,7 @@ says so too), ``PARTIAL`` when ``--hdu`` left other science HDUs uncorrected.
 import datetime
 
 from .. import __version__
+from ..fitsio import history_lines
 
 __all__ = ["Provenance", "status", "section"]
 
@@ -76,6 +80,7 @@ class Provenance:
         self.all_science = all_science
         self.hdus = {}  # index -> dict(name, region, units, exptime, frames)
         self.infos = {}  # index -> list of DecoupleInfo (None before the work)
+        self.unphysical = {}  # index -> unflagged pixels masked as unphysical
         self.started = _now()
 
     def add_hdu(self, index, name, label, region, units_text, exptime, frames):
@@ -117,6 +122,7 @@ class Provenance:
             "IPCEDGE": (self.model.edge, "IPC edge rule"),
             "IPCEDGER": (self.edge_reason[:60], "why this edge rule"),
             "IPCDQBIT": (self.bits, "DQ bits of pixels left out"),
+            "IPCNBAD": (sum(self.unphysical.values()), "unflagged unphysical pixels masked"),
             "IPCPED": (self.pedestal_text[:60], "charge on the node before the first read"),
             "IPCCOADD": (self.coadds, "exposures summed per frame"),
             "IPCARCH": (self.arch, "Taichi arch used"),
@@ -132,8 +138,9 @@ class Provenance:
             })
         for key, value in cards.items():
             header[key] = value
-        for line in self._history():
-            header.add_history(line)
+        for text in self._history():
+            for line in history_lines(text):
+                header.add_history(line)
         return header
 
     def science(self, index, header):
@@ -145,6 +152,7 @@ class Provenance:
         header["IPCHDU"] = (f"{index} {h['name']}"[:60], "this HDU: index name")
         header["IPCREFPX"] = (section(h["region"]), "science region (FITS section, 1-based)")
         header["IPCTIME"] = (h["exptime"], "integration time used, s (0: not a rate)")
+        header["IPCNBAD"] = (self.unphysical.get(index, 0), "unflagged unphysical pixels masked")
         if self.operation == "decouple":
             infos = self.infos[index]
             header["IPCITER"] = (self._iterations(infos), "Jacobi iterations (max, this HDU)")
@@ -174,6 +182,7 @@ class Provenance:
         out = {"version": __version__, "operation": self.operation,
                "law": self.model.law.name, "model": self.model.describe(),
                "edge_reason": self.edge_reason, "units": h["units"], "dq_bits": self.bits,
+               "masked_unphysical": int(self.unphysical.get(index, 0)),
                "pedestal": self.pedestal_text, "coadds": self.coadds,
                "science_region": [[h["region"][0].start, h["region"][0].stop],
                                   [h["region"][1].start, h["region"][1].stop]],

@@ -29,7 +29,7 @@ import numpy as np
 
 from .. import iteration
 from ..errors import IPCInputError
-from ..fitsio import check_output_path
+from ..fitsio import cannot_write, check_output_path
 from ..interrupts import check_stop
 from . import conventions as cv
 from . import missions
@@ -161,10 +161,11 @@ def process_asdf(input_path, output_path, operation="decouple", *, model=None, o
             inner = type(model)(model.law, model.geometry, "zero")
             edge_reason = "reference border stored apart: zero-signal neighbours"
         out = np.empty(data.shape, dtype=data.dtype)
+        record = cv.Unphysical(options.unphysical)
         _, infos = cv.correct_frames(data, operation, inner, mask=mask, region=region,
                                      scale=scale, out=out, max_iter=max_iter, tol=tol,
                                      arch=options.arch, precision=options.precision,
-                                     label=label)
+                                     label=label, unphysical=record)
         dm.data = out
         from .. import runtime
 
@@ -174,6 +175,7 @@ def process_asdf(input_path, output_path, operation="decouple", *, model=None, o
         prov.add_hdu(0, "data", label, region, units_text, exptime if units.rate else 0.0,
                      len(infos))
         prov.infos[0] = infos
+        prov.unphysical[0] = record.masked
         dm.meta["ipc_taichi"] = prov.record()
         if ramp and operation == "decouple" and "cal_step" in dm.meta:
             dm.meta.cal_step["ipc"] = "COMPLETE" if prov.status() == "COMPLETE" else "FAILED"
@@ -182,7 +184,8 @@ def process_asdf(input_path, output_path, operation="decouple", *, model=None, o
     return {"output": output_path, "label": label, "frames": len(infos), "infos": infos,
             "hdus": [label],
             "iterations": max(i.iterations for i in infos) if operation == "decouple" else 0,
-            "converged": converged}
+            "converged": converged, "law": inner.law.name, "edge": inner.edge,
+            "masked_unphysical": record.masked}
 
 
 def _save(dm, output_path, overwrite):
@@ -190,7 +193,11 @@ def _save(dm, output_path, overwrite):
     the target's own name (the datamodel records its file name), then renamed
     into place; the directory is removed on any error, SIGINT or SIGTERM."""
     parent = os.path.dirname(os.path.abspath(output_path))
-    with tempfile.TemporaryDirectory(prefix=".tmp-", dir=parent) as tmpdir:
+    try:
+        staging = tempfile.TemporaryDirectory(prefix=".tmp-", dir=parent)
+    except OSError as exc:  # name the output, not the temporary directory
+        raise cannot_write(output_path, exc) from None
+    with staging as tmpdir:
         tmp = os.path.join(tmpdir, os.path.basename(output_path))
         try:
             dm.save(tmp)

@@ -55,19 +55,23 @@ class Flags:
 
 
 def whole(path, hdul, index, out, flags, region, scale, model, options, label, pedestal=None,
-          operation="decouple"):
-    """Correct HDU ``index`` in memory into ``out`` (a memory map of the output)."""
+          operation="decouple", record=None):
+    """Correct HDU ``index`` in memory into ``out`` (a memory map of the output);
+    ``record``: the :class:`~ipc_taichi.products.conventions.Unphysical` of
+    this HDU (default: ``options.unphysical``)."""
     data = read_array(path, hdul, index)
     _, infos = cv.correct_frames(
         data, operation, model, mask=flags.whole(region, data), region=region, scale=scale,
         out=out, max_iter=options.max_iter, tol=options.tol, arch=options.arch,
-        precision=options.precision, label=label, pedestal=pedestal)
+        precision=options.precision, label=label, pedestal=pedestal,
+        unphysical=record if record is not None else options.unphysical)
     return infos
 
 
-def tiled(path, hdul, index, out, flags, region, scale, model, options, label):
+def tiled(path, hdul, index, out, flags, region, scale, model, options, label, record=None):
     """Decouple every frame of HDU ``index`` tile by tile (read and write
-    through memory maps)."""
+    through memory maps); ``record`` as for :func:`whole`."""
+    record = record if record is not None else cv.Unphysical(options.unphysical)
     source = RawImage(path, hdul, index)
     shape = source.shape
     ny, nx = region[0].stop - region[0].start, region[1].stop - region[1].start
@@ -94,14 +98,22 @@ def tiled(path, hdul, index, out, flags, region, scale, model, options, label):
             values = source[lead + full(window)] * factor(window)
             return np.where(np.isfinite(values), values, 0.0)
 
-        def read_mask(window, lead=lead):
+        def flagged(window, lead=lead):
+            """Pixels of ``window`` left out by the flags and the gain."""
             values = source[lead + full(window)]
-            m = ~np.isfinite(values)
-            flagged = flags.window(lead, region, window, values)
-            if flagged is not None:
-                m |= flagged
+            m = np.zeros(values.shape, dtype=bool)
+            by_flags = flags.window(lead, region, window, values)
+            if by_flags is not None:
+                m |= by_flags
             if s.ndim == 2:
                 m |= cv.unusable_gain(factor(window))
+            return values, m
+
+        def read_mask(window, flagged=flagged):
+            values, m = flagged(window)
+            m |= ~np.isfinite(values)
+            if record.action == "mask":
+                m |= cv.unphysical(values * factor(window))
             return m
 
         def write(core, values, lead=lead):
@@ -111,13 +123,15 @@ def tiled(path, hdul, index, out, flags, region, scale, model, options, label):
             out[lead + full(core)] = np.where(read_mask(core), source[lead + full(core)],
                                               result)
 
-        _check_not_empty(read, read_mask, (ny, nx), options.tile, where)  # one read pass
+        _scan(flagged, factor, (ny, nx), options.tile, where, record,
+              (region[0].start, region[1].start))  # one read pass
         with cv.named(where):
             info = decouple_blocks(read, write, (ny, nx), options.tile, model,
                                    max_iter=options.max_iter, tol=options.tol,
                                    arch=options.arch, precision=options.precision,
                                    progress=options.progress, read_mask=read_mask)
         infos.append(info)
+    record.warn(label)
     return infos
 
 
@@ -126,10 +140,19 @@ def _strips(shape, rows=256):
         yield slice(y0, min(shape[0], y0 + rows)), slice(0, shape[1])
 
 
-def _check_not_empty(read, read_mask, shape, tile, where):
+def _scan(flagged, factor, shape, tile, where, record, origin):
+    """One pass over the core tiles: count the unphysical pixels into
+    ``record``; refuse a frame with no finite pixel left to decouple."""
+    usable = False
     for core in tiles(shape, tile):
-        v = read(core)
-        m = read_mask(core)
-        if (np.isfinite(v) & (True if m is None else ~m)).any():
-            return
-    raise IPCInputError(f"{where}: no finite, unmasked pixel to decouple (all NaN or flagged)")
+        values, m = flagged(core)
+        with np.errstate(invalid="ignore"):
+            charge = values * factor(core)
+        bad = record.add(charge, m, where, (origin[0] + core[0].start,
+                                            origin[1] + core[1].start))
+        if bad is not None:
+            m |= bad
+        usable = usable or bool((np.isfinite(values) & ~m).any())
+    if not usable:
+        raise IPCInputError(f"{where}: no finite, unmasked pixel to decouple (all NaN, flagged "
+                            "or unphysical)")
