@@ -543,24 +543,144 @@ def run_couple(frames, model, info, layout, out=None):
     return out
 
 
-def run_decouple(frames, model, info, layout, iterate, out=None):
-    """Decouple every frame; ``iterate(k, step, ws, base)`` runs the Jacobi
-    iterations of frame ``k`` (the rules live with the caller) and returns the
-    padded array holding the answer."""
+def run_decouple(frames, model, info, layout, iterate, out=None, warm_start=False):
+    """Decouple every frame; ``iterate(k, step, ws, warm)`` runs the Jacobi
+    iterations of frame ``k`` (the rules live with the caller) from the start
+    the engine loaded into ``ws.prev`` and returns the padded array holding the
+    answer; ``warm`` says whether that start is the warm one (see
+    :class:`WarmStart`; only with ``warm_start`` and from the second frame on)."""
     with ENGINE_LOCK, _stream_order(frames) as order:
         run = _Run(frames, model, info, layout, "measured")
         out = run.output(out)
+        warm = WarmStart(run) if warm_start and frames.shape[0] > 1 else None
         with run.pinned(out):
             for k in range(frames.shape[0]):
                 base, io, any_bad = run.load(k, out)
+                warmed = warm is not None and warm.apply(any_bad)
 
                 def step(src, dst, masked=any_bad, base=base):
                     return run.step(masked, src, base, dst, -1.0)
 
-                answer = iterate(k, step, run.ws)
+                answer = iterate(k, step, run.ws, warmed)
+                if warm is not None and k + 1 < frames.shape[0]:
+                    warm.keep(answer, base)
                 run.finish(k, io, answer, out, any_bad)
         order.adopt(out if frames.on_device else None)
     return out
+
+
+class WarmStart:
+    """The start of frame ``k`` from the answers of the frames before it.
+
+    With ``c_k = S_k - M_k`` the correction of frame ``k`` (its answer minus
+    its measured frame), frame ``k`` starts from ``S_0 = M_k + c_(k-1)`` (the
+    previous solution plus the new charge ``M_k - M_(k-1)``) from the second
+    frame on, and from ``S_0 = M_k + 2 c_(k-1) - c_(k-2)`` (the correction
+    extrapolated linearly) from the third on. Up a ramp the correction grows
+    about linearly with the accumulated charge, so the extrapolated start is
+    off only by the change in the charge's rate (noise, non-linearity), the
+    first by the coupling of the new charge, the start from scratch by the
+    coupling of all of it. Bad pixels of frame ``k`` start at zero, as from
+    scratch.
+
+    The stopping rule is unchanged and judges only the last update, whatever
+    the start, so the answer meets the same tolerance as one from scratch (see
+    :func:`ipc_taichi.decouple`); it is not bit-identical to it.
+    """
+
+    def __init__(self, run):
+        self.run = run
+        ws = run.ws
+        # c_(k-1) and the step c_(k-1) - c_(k-2) (zero until two frames are solved),
+        # for this call only (not counted in the workspace's cached bytes)
+        self.correction, self.trend = (_frame_buffer(ws) for _ in range(2))
+        self._spare = None
+        self.kept = 0
+
+    def keep(self, answer, base):
+        """Remember the correction of the frame just solved (before its result
+        is stored), and its change since the frame before."""
+        ws = self.run.ws
+        if ws.device_buffers:
+            warm_kernels(self.run.info.precision).keep(answer, base, self.correction,
+                                                       self.trend, ws.reach, self.kept)
+        else:
+            new = np.subtract(interior(answer, ws.reach), base, out=self.spare())
+            if self.kept:
+                np.subtract(new, self.correction, out=self.trend)
+            self.correction, self._spare = new, self.correction
+        self.kept += 1
+
+    def spare(self):
+        """A host frame to write the next correction into (the one before it)."""
+        if self._spare is None:
+            self._spare = np.empty_like(self.correction)
+        return self._spare
+
+    def apply(self, any_bad):
+        """Add the extrapolated correction to the loaded ``S_0 = M_k``; whether it did."""
+        if not self.kept:
+            return False
+        ws = self.run.ws
+        if ws.device_buffers:
+            warm_kernels(self.run.info.precision).add(ws.prev, self.correction, self.trend,
+                                                      ws.ok, ws.reach)
+        else:
+            start = interior(ws.prev, ws.reach)
+            start += self.correction
+            if self.kept > 1:
+                start += self.trend
+            if any_bad:
+                start[interior(ws.ok, ws.reach) == 0] = 0
+        return True
+
+
+def _frame_buffer(ws):
+    """A zeroed frame of the workspace's shape and dtype, where its arrays live."""
+    if not ws.device_buffers:
+        return np.zeros(ws.shape, dtype=ws.dtype)
+    import taichi as ti
+
+    kind = ti.f64 if ws.dtype == np.float64 else ti.f32
+    arr = ti.ndarray(dtype=kind, shape=ws.shape)
+    arr.fill(0)
+    return arr
+
+
+_warm_kernels = {}
+
+
+def warm_kernels(precision):
+    """The two device kernels of :class:`WarmStart` (compiled once per precision)."""
+    hit = _warm_kernels.get(precision)
+    if hit is not None:
+        return hit
+    import taichi as ti
+
+    real = ti.f64 if precision == "f64" else ti.f32
+    frame = ti.types.ndarray(dtype=real, ndim=2)
+    mask = ti.types.ndarray(dtype=ti.u8, ndim=2)
+
+    @ti.kernel
+    def keep(src: frame, base: frame, correction: frame, trend: frame, r: ti.i32,
+             kept: ti.i32):
+        for i, j in base:
+            new = src[i + r, j + r] - base[i, j]
+            trend[i, j] = ti.select(kept > 0, new - correction[i, j], 0.0)
+            correction[i, j] = new
+
+    @ti.kernel
+    def add(start: frame, correction: frame, trend: frame, ok: mask, r: ti.i32):
+        for i, j in correction:
+            good = ok[i + r, j + r] != 0
+            warm = start[i + r, j + r] + correction[i, j] + trend[i, j]
+            start[i + r, j + r] = ti.select(good, warm, 0.0)
+
+    hit = _warm_kernels[precision] = collections.namedtuple("WarmKernels", "keep add")(keep, add)
+    return hit
+
+
+runtime.on_reset(_warm_kernels.clear)
 
 
 def _stream_order(frames):
