@@ -9,11 +9,12 @@ variable ``IPC_TAICHI_ARCH`` (``auto``, ``cpu`` or ``cuda``) and the default
 ``auto``. The precision likewise by ``precision``, ``IPC_TAICHI_PRECISION``
 (``f64`` or ``f32``) and the default ``f64``.
 
-A choice sticks until changed: once a runtime runs, an argument left ``None``
-keeps its arch and precision (the environment and the defaults only choose the
-first runtime). So after ``init(precision="f32")`` every later
+A precision sticks until changed: once a runtime runs, ``precision=None``
+keeps its precision (the environment and the default only choose the first
+runtime's). So after ``init(precision="f32")`` every later
 ``decouple()``/``couple()`` without ``precision=`` runs in f32, without a
 recompile; ``precision="f64"`` (or ``init(precision="f64")``) switches back.
+The arch is kept as before: ``auto`` (the default) keeps the running one.
 
 ``IPC_TAICHI_THREADS`` (a positive integer), when set, caps the threads of
 Taichi's CPU thread pool (``ti.init(cpu_max_num_threads=...)``): the Dask
@@ -128,7 +129,7 @@ def init(arch=None, precision=None):
     Parameters
     ----------
     arch : {"auto", "cpu", "cuda"}, optional
-        Default: the running runtime's, else ``$IPC_TAICHI_ARCH`` or ``"auto"``.
+        Default: ``$IPC_TAICHI_ARCH`` or ``"auto"`` (which keeps the running arch).
     precision : {"f64", "f32"}, optional
         Default: the running runtime's, else ``$IPC_TAICHI_PRECISION`` or ``"f64"``.
 
@@ -137,9 +138,8 @@ def init(arch=None, precision=None):
     RuntimeInfo
     """
     global _current
-    if _current is not None:  # a choice sticks until changed
-        arch = _current.requested if arch is None else arch
-        precision = _current.precision if precision is None else precision
+    if _current is not None and precision is None:  # a precision sticks until changed
+        precision = _current.precision
     requested = _resolve(arch, ARCH_ENV, _ARCHES, "auto", "arch")
     precision = _resolve(precision, PRECISION_ENV, _PRECISIONS, "f64", "precision")
 
