@@ -165,3 +165,21 @@ def test_warm_start_leaves_a_single_frame_alone(cpu):
     np.testing.assert_array_equal(ipc_taichi.decouple(measured[1], warm_start=True), one)
     # and a stack without it is each frame from scratch, bit for bit
     np.testing.assert_array_equal(ipc_taichi.decouple(measured)[1], one)
+
+
+def test_ramp_bench_row_small(cpu):
+    from ipc_taichi.bench.launch import work
+    from ipc_taichi.bench.render import render_section
+
+    try:
+        section = work({"config": "ramp", "size": 96, "groups": 8, "repeats": 1})
+    finally:
+        ipc_taichi.init("cpu", "f64")  # it leaves Taichi in f32
+    scratch, warm = section["rows"]
+    assert scratch["start"] == "from scratch" and warm["start"] == "warm start"
+    assert scratch["converged"] and warm["converged"] and section["within_tolerance"]
+    assert warm["max diff vs scratch [e-]"] <= warm["tol x max(S) [e-]"]
+    total = [int(r["iterations"].split()[0]) for r in (scratch, warm)]
+    assert total[1] < total[0]
+    text = render_section(section)
+    assert "96x96 x 8 groups" in text and "| warm start |" in text
