@@ -175,11 +175,15 @@ def test_ramp_bench_row_small(cpu):
         section = work({"config": "ramp", "size": 96, "groups": 8, "repeats": 1})
     finally:
         ipc_taichi.init("cpu", "f64")  # it leaves Taichi in f32
-    scratch, warm = section["rows"]
-    assert scratch["start"] == "from scratch" and warm["start"] == "warm start"
-    assert scratch["converged"] and warm["converged"] and section["within_tolerance"]
-    assert warm["max diff vs scratch [e-]"] <= warm["tol x max(S) [e-]"]
-    total = [int(r["iterations"].split()[0]) for r in (scratch, warm)]
-    assert total[1] < total[0]
+    assert section["within_tolerance"]
+    rows = section["rows"]
+    assert [(r["law"], r["start"]) for r in rows] == [
+        ("donlon2018", "from scratch"), ("donlon2018", "warm start"),
+        ("constant:0.0125", "from scratch"), ("constant:0.0125", "warm start")]
+    for scratch, warm in (rows[:2], rows[2:]):
+        assert scratch["converged"] and warm["converged"]
+        assert warm["max diff vs scratch [e-]"] <= warm["tol x max(S) [e-]"]
+        total = [int(r["iterations"].split()[0]) for r in (scratch, warm)]
+        assert total[1] < total[0]
     text = render_section(section)
-    assert "96x96 x 8 groups" in text and "| warm start |" in text
+    assert "96x96 x 8 groups" in text and "| donlon2018 | warm start |" in text
