@@ -216,7 +216,7 @@ def run_benchmark(sizes=SIZES, kinds=KINDS, repeats=5, configs=None, progress=pr
     if measure and ramp_size:
         progress(f"  a {ramp_size}x{ramp_size} x {ramp_groups} ramp, from scratch and warm")
         ramp, failed = in_subprocess({"config": "ramp", "size": ramp_size,
-                                      "groups": ramp_groups, "repeats": 3})
+                                      "groups": ramp_groups, "repeats": 5})
         if failed:
             notes.append(f"The ramp row failed: {failed}")
     cuda = None

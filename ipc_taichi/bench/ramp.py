@@ -65,7 +65,7 @@ def _one_law(measured, truth, law, repeats):
         median = statistics.median(times[name])
         its = [i.iterations for i in infos[name]]
         rows.append({
-            "law": law, "start": name, "median [s]": median,
+            "law": law, "start": name, "median [s]": median, "best [s]": min(times[name]),
             "per group [s]": median / len(measured),
             "iterations": f"{sum(its)} ({', '.join(map(str, its))})",
             "converged": all(i.converged for i in infos[name]),
@@ -75,12 +75,15 @@ def _one_law(measured, truth, law, repeats):
             "times_s": times[name],
             "within_tolerance": bool(np.all(diff.max(axis=(1, 2)) <= scale)),
         })
-    rows[1]["vs scratch"] = f"{rows[0]['median [s]'] / median:.2f}x faster"
-    rows[0]["vs scratch"] = ""
+    rows[1]["vs scratch (median, best)"] = (
+        f"{rows[0]['median [s]'] / rows[1]['median [s]']:.2f}x, "
+        f"{rows[0]['best [s]'] / rows[1]['best [s]']:.2f}x")
+    rows[0]["vs scratch (median, best)"] = ""
     return rows
 
 
-COLUMNS = ["law", "start", "median [s]", "per group [s]", "vs scratch", "iterations",
+COLUMNS = ["law", "start", "median [s]", "best [s]", "per group [s]",
+           "vs scratch (median, best)", "iterations",
            "converged", "max diff vs scratch [e-]", "tol x max(S) [e-]",
            "max error vs truth [e-]"]
 
@@ -115,7 +118,8 @@ def measure_ramp(size=RAMP_SIZE, groups=RAMP_GROUPS, precision="f32",
         "notes": [
             "ipc_taichi.bench.ramp.measure_ramp: one 3-D stack through "
             "ipc_taichi.decouple (Python API, NumPy in and out), median of "
-            f"{repeats} warm runs of each, the two starts interleaved, in one process.",
+            f"{repeats} warm runs of each (and the best), the two starts interleaved, in "
+            "one process; per group: median / groups.",
             "Star field on a 40 e- sky, each group's new charge Poisson-drawn, coupled "
             "with the law; the paper's stopping rule for both starts.",
             f"Every group's warm-started answer {'within' if within else 'NOT within'} "
