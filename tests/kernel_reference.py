@@ -16,8 +16,9 @@ The ``f32`` entries first recorded were f64 outputs: ``init("cpu", "f32")``
 did not stick and ``couple``/``decouple`` without ``precision=`` went back to
 f64 (issue 28). They, and the four ``f64/*/table_nearest/*/decouple``
 entries (which 57167aa's own kernels no longer reproduce on this machine;
-the cause was not traced, every other entry they reproduce), were recorded again from commit 57167aa's kernels with
-the precision passed explicitly; the current kernels give all 144 bit for bit.
+the cause was not traced, every other entry they reproduce), were recorded
+again from commit 57167aa's kernels with the precision passed explicitly; the
+current kernels give all 144 bit for bit.
 """
 
 import hashlib

@@ -124,6 +124,8 @@ def test_warm_ramp_same_answer_fewer_iterations(cpu, law):
     warm_n = sum(i.iterations for i in warm_info)
     assert warm_n <= cold_n - 7  # at least one iteration saved per warm group
     assert warm_info[0].iterations == cold_info[0].iterations  # the first from scratch
+    if law.startswith("constant"):  # a linear law on a noise-free ramp: exact extrapolation
+        assert [i.iterations for i in warm_info[2:]] == [1] * 6
 
 
 def test_warm_unrelated_frames_still_correct(cpu, rng):
