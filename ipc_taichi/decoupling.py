@@ -106,7 +106,7 @@ def decouple(measured, law=None, geometry=None, edge=None, max_iter=iteration.MA
         For a 3-D stack whose frames follow each other, such as the groups of
         a ramp: start frame ``k`` from the previous frame's answer plus the new
         charge, ``S_0 = M_k + (S_(k-1) - M_(k-1))``, instead of ``S_0 = M_k``
-        (see :class:`ipc_taichi._engine.WarmStart`). Same stopping rule, which
+        (see :class:`ipc_taichi._warm.WarmStart`). Same stopping rule, which
         judges only the last update: the answer meets the same tolerance as
         from scratch, in fewer iterations up a ramp (typically 1-2 instead of
         4-5), but is not bit-identical to it, and frame ``k``'s answer then

@@ -8,7 +8,7 @@ the Python API as one 3-D stack, in this process:
 - ``from scratch``: ``ipc_taichi.decouple(ramp)``, each group from ``S_0 = M``;
 - ``warm start``: ``ipc_taichi.decouple(ramp, warm_start=True)``, each group
   from the previous groups' answers plus its new charge
-  (:class:`ipc_taichi._engine.WarmStart`).
+  (:class:`ipc_taichi._warm.WarmStart`).
 
 Both use the paper's stopping rule. The row reports the median time, the
 iterations per group, the largest difference between the two answers beside
