@@ -53,6 +53,7 @@ from ._kernels import (
     kernel_law_kind,
     partials_count,
 )
+from ._warm import WarmStart
 from .errors import IPCInputError
 
 # rows per task of the CPU sweep: a strip re-evaluates the dy-row pairs above
@@ -393,10 +394,11 @@ class _Run:
             else None
         return pinned_for_call([data, out if host else None], self.info.arch, enabled=host)
 
-    def load(self, k, out):
+    def load(self, k, out, shift=None):
         """Frame ``k`` into the workspace; returns ``(base, io, any_bad)``: the
         unpadded measured frame the steps read (bad pixels zeroed), the result
-        frame, and whether any pixel is bad."""
+        frame, and whether any pixel is bad. On the host path, ``shift`` (a
+        frame, optional) is added to the start: ``S_0 = M + shift``."""
         frames, ws = self.frames, self.ws
         bad = None if frames.bad is None else frames.bad[k]
         if self.aliased:
@@ -407,7 +409,7 @@ class _Run:
             if frames.on_device:  # a CPU tensor: the same memory seen by NumPy
                 io, host = io.numpy(), _numpy_view(host, out.dtype)
                 bad = None if bad is None else bad.numpy()
-            base, any_bad = _load_host(host, bad, io, ws)
+            base, any_bad = _load_host(host, bad, io, ws, shift)
             return base, io, any_bad
         if frames.on_device:
             io = out[k]
@@ -477,7 +479,7 @@ class _Run:
         out[k][bad] = values
 
 
-def _load_host(host, bad, io, ws):
+def _load_host(host, bad, io, ws, shift=None):
     """What the ``load`` kernel does (see :func:`ipc_taichi._kernels.get_frame_kernels`),
     in NumPy, on the CPU: Taichi's CPU code for this per-pixel copy is scalar and
     about twice as slow as NumPy's vectorised passes, and a launch costs more
@@ -502,7 +504,13 @@ def _load_host(host, bad, io, ws):
             np.copyto(io, host)
         io[~good] = 0.0
         base = io
-    interior(ws.prev, ws.reach)[...] = base
+    start = interior(ws.prev, ws.reach)
+    if shift is None:
+        start[...] = base
+    else:  # a warm start, S_0 = M + shift, in the same pass
+        np.add(base, shift, out=start)
+        if any_bad:
+            start[~good] = 0.0
     if any_bad or not ws.ok_clean:
         interior(ws.ok, ws.reach)[...] = True if good is None else good
         ws.ok_clean = not any_bad
@@ -543,21 +551,28 @@ def run_couple(frames, model, info, layout, out=None):
     return out
 
 
-def run_decouple(frames, model, info, layout, iterate, out=None):
-    """Decouple every frame; ``iterate(k, step, ws, base)`` runs the Jacobi
-    iterations of frame ``k`` (the rules live with the caller) and returns the
-    padded array holding the answer."""
+def run_decouple(frames, model, info, layout, iterate, out=None, warm_start=False):
+    """Decouple every frame; ``iterate(k, step, ws, warm)`` runs the Jacobi
+    iterations of frame ``k`` (the rules live with the caller) from the start
+    the engine loaded into ``ws.prev`` and returns the padded array holding the
+    answer; ``warm`` says whether that start is the warm one (see
+    :class:`WarmStart`; only with ``warm_start`` and from the second frame on)."""
     with ENGINE_LOCK, _stream_order(frames) as order:
         run = _Run(frames, model, info, layout, "measured")
         out = run.output(out)
+        warm = WarmStart(run) if warm_start and frames.shape[0] > 1 else None
         with run.pinned(out):
             for k in range(frames.shape[0]):
-                base, io, any_bad = run.load(k, out)
+                shift = warm.host_shift() if warm is not None else None
+                base, io, any_bad = run.load(k, out, shift)
+                warmed = warm is not None and warm.apply(shift)
 
                 def step(src, dst, masked=any_bad, base=base):
                     return run.step(masked, src, base, dst, -1.0)
 
-                answer = iterate(k, step, run.ws)
+                answer = iterate(k, step, run.ws, warmed)
+                if warm is not None and k + 1 < frames.shape[0]:
+                    warm.keep(answer, base)
                 run.finish(k, io, answer, out, any_bad)
         order.adopt(out if frames.on_device else None)
     return out

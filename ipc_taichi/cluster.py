@@ -3,7 +3,10 @@
 Taichi has one runtime per process and is not thread-safe, so every Dask
 worker is a **process with one thread**; each worker initialises Taichi
 lazily, the first time one of its tasks calls :func:`ipc_taichi.decouple`,
-and keeps it for later tasks.
+and keeps it for later tasks. Taichi's own CPU thread pool in each worker is
+capped at ``cores // workers`` (at least 1, :func:`worker_threads`, passed as
+``$IPC_TAICHI_THREADS``, see :mod:`ipc_taichi.runtime`): uncapped, every
+worker ran one thread per core and two workers were no faster than one.
 
 - :func:`local_client` starts such a ``LocalCluster`` (or connects to a
   running scheduler).
@@ -29,10 +32,18 @@ import numpy as np
 from . import iteration
 from .errors import IPCInputError
 from .model import CouplingModel
+from .runtime import THREADS_ENV
 from .tiling import decouple_blocks, halo_for, tile_maxima
 
 __all__ = ["local_client", "decouple_files", "decouple_stack", "decouple_mosaic",
-           "FileResult"]
+           "FileResult", "worker_threads"]
+
+
+def worker_threads(workers, cores=None):
+    """Taichi CPU threads per worker so that ``workers`` of them add up to the
+    ``cores`` (default: this machine's): ``cores // workers``, at least 1."""
+    cores = int(cores or os.cpu_count() or 1)
+    return max(1, cores // max(1, int(workers)))
 
 
 def local_client(scheduler=None, workers=None, memory_limit="auto", gpus=None):
@@ -40,7 +51,8 @@ def local_client(scheduler=None, workers=None, memory_limit="auto", gpus=None):
     with ``gpus`` (a list of GPU ids, empty for every visible GPU), to a new
     cluster of one single-threaded worker per GPU
     (:func:`ipc_taichi.gpus.gpu_cluster`); else to a new ``LocalCluster`` of
-    ``workers`` single-threaded processes."""
+    ``workers`` single-threaded processes, whose Taichi thread pools are capped
+    at :func:`worker_threads` each."""
     import logging
 
     from distributed import Client, LocalCluster
@@ -64,7 +76,8 @@ def local_client(scheduler=None, workers=None, memory_limit="auto", gpus=None):
     with dask.config.set({"distributed.scheduler.allowed-failures": 1}):
         cluster = LocalCluster(
             n_workers=workers, threads_per_worker=1, processes=True,
-            dashboard_address=None, memory_limit=memory_limit, silence_logs=logging.CRITICAL)
+            dashboard_address=None, memory_limit=memory_limit, silence_logs=logging.CRITICAL,
+            env={THREADS_ENV: os.environ.get(THREADS_ENV) or str(worker_threads(workers))})
     client = Client(cluster)
     client._ipc_taichi_owns_cluster = True
     return client

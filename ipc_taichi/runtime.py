@@ -9,6 +9,18 @@ variable ``IPC_TAICHI_ARCH`` (``auto``, ``cpu`` or ``cuda``) and the default
 ``auto``. The precision likewise by ``precision``, ``IPC_TAICHI_PRECISION``
 (``f64`` or ``f32``) and the default ``f64``.
 
+A precision sticks until changed: once a runtime runs, ``precision=None``
+keeps its precision (the environment and the default only choose the first
+runtime's). So after ``init(precision="f32")`` every later
+``decouple()``/``couple()`` without ``precision=`` runs in f32, without a
+recompile; ``precision="f64"`` (or ``init(precision="f64")``) switches back.
+The arch is kept as before: ``auto`` (the default) keeps the running one.
+
+``IPC_TAICHI_THREADS`` (a positive integer), when set, caps the threads of
+Taichi's CPU thread pool (``ti.init(cpu_max_num_threads=...)``): the Dask
+workers of :func:`ipc_taichi.cluster.local_client` get ``cores // workers``
+each, so that they add up to the cores instead of each using all of them.
+
 - ``cuda`` requested explicitly and not available raises
   :class:`~ipc_taichi.errors.ArchUnavailableError`.
 - ``auto`` tries CUDA and falls back to the CPU with a logged notice.
@@ -27,10 +39,12 @@ import numpy as np
 
 from .errors import ArchUnavailableError
 
-__all__ = ["RuntimeInfo", "init", "current", "ARCH_ENV", "PRECISION_ENV"]
+__all__ = ["RuntimeInfo", "init", "current", "cpu_threads", "ARCH_ENV", "PRECISION_ENV",
+           "THREADS_ENV"]
 
 ARCH_ENV = "IPC_TAICHI_ARCH"
 PRECISION_ENV = "IPC_TAICHI_PRECISION"
+THREADS_ENV = "IPC_TAICHI_THREADS"
 _ARCHES = ("auto", "cpu", "cuda")
 _PRECISIONS = ("f64", "f32")
 
@@ -49,11 +63,15 @@ class RuntimeInfo:
         ``"f64"`` or ``"f32"``: the floating type of every array and kernel.
     requested : str
         The arch that was asked for (``auto``, ``cpu`` or ``cuda``).
+    threads : int or None
+        The cap on Taichi's CPU threads (``$IPC_TAICHI_THREADS``), ``None``
+        for Taichi's default (every core).
     """
 
     arch: str
     precision: str
     requested: str
+    threads: int = None
 
     @property
     def dtype(self):
@@ -76,6 +94,21 @@ def _resolve(value, env, allowed, default, what):
     return value
 
 
+def cpu_threads():
+    """The cap on Taichi's CPU threads from ``$IPC_TAICHI_THREADS``, or ``None``
+    when it is unset or empty (Taichi then uses every core)."""
+    text = os.environ.get(THREADS_ENV, "").strip()
+    if not text:
+        return None
+    try:
+        threads = int(text)
+    except ValueError:
+        threads = 0
+    if threads < 1:
+        raise ValueError(f"{THREADS_ENV}={text!r}: expected a positive integer")
+    return threads
+
+
 def on_reset(hook):
     """Register ``hook()`` to run whenever the runtime is (re)initialised.
 
@@ -96,15 +129,17 @@ def init(arch=None, precision=None):
     Parameters
     ----------
     arch : {"auto", "cpu", "cuda"}, optional
-        Default: ``$IPC_TAICHI_ARCH`` or ``"auto"``.
+        Default: ``$IPC_TAICHI_ARCH`` or ``"auto"`` (which keeps the running arch).
     precision : {"f64", "f32"}, optional
-        Default: ``$IPC_TAICHI_PRECISION`` or ``"f64"``.
+        Default: the running runtime's, else ``$IPC_TAICHI_PRECISION`` or ``"f64"``.
 
     Returns
     -------
     RuntimeInfo
     """
     global _current
+    if _current is not None and precision is None:  # a precision sticks until changed
+        precision = _current.precision
     requested = _resolve(arch, ARCH_ENV, _ARCHES, "auto", "arch")
     precision = _resolve(precision, PRECISION_ENV, _PRECISIONS, "f64", "precision")
 
@@ -132,6 +167,9 @@ def init(arch=None, precision=None):
     # fast_math off: it may reorder the stopping rule's max-reductions and drop
     # IEEE guarantees we rely on for f64 agreement with the NumPy reference.
     common = dict(default_fp=fp, fast_math=False, log_level=ti.ERROR)
+    threads = cpu_threads()
+    if threads is not None:
+        common["cpu_max_num_threads"] = threads
     # ti.init prints "Starting on arch=..." unconditionally; keep stdout clean
     # for command-line output (the arch is reported by RuntimeInfo instead)
     with contextlib.redirect_stdout(io.StringIO()):
@@ -147,5 +185,6 @@ def init(arch=None, precision=None):
         )
     if arch_name != "cuda" and requested == "auto":
         log.warning("notice: CUDA not available, ipc_taichi runs on the CPU")
-    _current = RuntimeInfo(arch=arch_name, precision=precision, requested=requested)
+    _current = RuntimeInfo(arch=arch_name, precision=precision, requested=requested,
+                           threads=threads)
     return _current

@@ -47,6 +47,18 @@ def cli(capsys):
     return run
 
 
+@pytest.fixture(autouse=True)
+def _precision_restored():
+    """A test that switches the runtime to f32 does not leave it there: a chosen
+    precision sticks until changed (``ipc_taichi.init``), and the suite runs in f64."""
+    yield
+    from ipc_taichi import runtime
+
+    info = runtime.current()
+    if info is not None and info.precision != "f64" and info.arch == "cpu":
+        ipc_taichi.init("cpu", "f64")
+
+
 @pytest.fixture
 def cpu():
     """The CPU/f64 runtime the tests assume."""

@@ -18,7 +18,8 @@ written atomically.
 
 Where the ``jwst`` package is installed, one more row puts the constant-law
 decoupler beside the JWST pipeline's own ``ipc`` step on the same ramp
-(:mod:`ipc_taichi.bench.pipeline`).
+(:mod:`ipc_taichi.bench.pipeline`). A ramp is decoupled from scratch and
+warm-started (:mod:`ipc_taichi.bench.ramp`).
 
 Modules: :mod:`~ipc_taichi.bench.cpu` (the CPU rows and the floor),
 :mod:`~ipc_taichi.bench.cuda` (the CUDA rows), :mod:`~ipc_taichi.bench.peers`
@@ -32,9 +33,11 @@ from .cuda import CUDA_SIZE, STACK_FRAMES, measure_cuda
 from .launch import cuda_present, in_subprocess, machine, run_benchmark, write_results
 from .peers import CupyPeer
 from .pipeline import measure_pipeline_ipc
+from .ramp import RAMP_GROUPS, RAMP_SIZE, measure_ramp
 from .render import floor_model, render_cuda, render_markdown, render_pipeline, render_section
 
 __all__ = ["run_benchmark", "write_results", "machine", "in_subprocess", "cuda_present",
            "measure_row", "measure_floor", "measure_cuda", "measure_pipeline_ipc", "CupyPeer",
            "render_markdown", "render_cuda", "render_pipeline", "render_section", "floor_model",
-           "SIZES", "KINDS", "CUDA_SIZE", "STACK_FRAMES"]
+           "SIZES", "KINDS", "CUDA_SIZE", "STACK_FRAMES", "measure_ramp", "RAMP_SIZE",
+           "RAMP_GROUPS"]

@@ -17,6 +17,7 @@ from ..datasets import star_field, uniform_frame
 from .cpu import KINDS, NUMPY_REPEAT_CAP, REFERENCE_MAX_SIZE, SIZES, measure_floor, measure_row
 from .cuda import CUDA_SIZE, STACK_FRAMES, measure_cuda
 from .pipeline import PIPELINE_SIZE, measure_pipeline_ipc
+from .ramp import RAMP_GROUPS, RAMP_SIZE, measure_ramp
 from .render import floor_model, render_markdown
 
 __all__ = ["run_benchmark", "write_results", "machine", "in_subprocess", "work", "cuda_present",
@@ -32,6 +33,9 @@ def work(spec):
         return measure_cuda(spec["size"], spec["repeats"], spec["stack"])
     if config == "pipeline":
         return measure_pipeline_ipc(size=spec["size"], repeats=spec["repeats"])
+    if config == "ramp":
+        return measure_ramp(size=spec["size"], groups=spec["groups"],
+                            precision=spec.get("precision", "f32"), repeats=spec["repeats"])
     if config == "calibrate":
         flats = {k: spec[k] for k in ("flat_size", "flat_ints", "flat_groups") if k in spec}
         return calibrate_section(measure_calibrate(spec.get("size", 2048),
@@ -141,7 +145,7 @@ def _frames(size, kind, workdir):
 
 def run_benchmark(sizes=SIZES, kinds=KINDS, repeats=5, configs=None, progress=print,
                   measure=True, cuda_size=CUDA_SIZE, stack=STACK_FRAMES,
-                  pipeline_size=PIPELINE_SIZE):
+                  pipeline_size=PIPELINE_SIZE, ramp_size=RAMP_SIZE, ramp_groups=RAMP_GROUPS):
     """Run every configuration on every frame; return the results dict.
 
     With ``measure``, also time the floor's building blocks
@@ -149,7 +153,9 @@ def run_benchmark(sizes=SIZES, kinds=KINDS, repeats=5, configs=None, progress=pr
     a CUDA GPU, the CUDA rows (:func:`measure_cuda`, ``cuda_size`` frames, a
     ``stack``-frame stack) in another, and where the ``jwst`` package is
     installed, the constant law beside the JWST ``ipc`` step on a
-    ``pipeline_size`` ramp (:func:`measure_pipeline_ipc`; 0 skips it).
+    ``pipeline_size`` ramp (:func:`measure_pipeline_ipc`; 0 skips it), and a
+    ``ramp_size`` x ``ramp_groups`` f32 ramp from scratch and warm-started
+    (:func:`ipc_taichi.bench.ramp.measure_ramp`; 0 skips it).
     """
     info = machine()
     configs = list(configs or _configs(info["cuda"]))
@@ -206,6 +212,13 @@ def run_benchmark(sizes=SIZES, kinds=KINDS, repeats=5, configs=None, progress=pr
         else:
             notes.append("The jwst package is not installed: the row beside the JWST ipc "
                          "step was not run (pip install 'ipc_taichi[jwst]').")
+    ramp = None
+    if measure and ramp_size:
+        progress(f"  a {ramp_size}x{ramp_size} x {ramp_groups} ramp, from scratch and warm")
+        ramp, failed = in_subprocess({"config": "ramp", "size": ramp_size,
+                                      "groups": ramp_groups, "repeats": 5})
+        if failed:
+            notes.append(f"The ramp row failed: {failed}")
     cuda = None
     if measure and info["cuda"] and cuda_size:
         progress(f"  CUDA rows at {cuda_size}x{cuda_size} (stack of {stack})")
@@ -220,7 +233,7 @@ def run_benchmark(sizes=SIZES, kinds=KINDS, repeats=5, configs=None, progress=pr
         if failed:
             notes.append(f"The calibrate row failed: {failed}")
     return {"machine": info, "repeats": repeats, "notes": notes, "rows": rows, "floor": floor,
-            "pipeline": pipeline, "calibrate": calibrate, "cuda": cuda}
+            "pipeline": pipeline, "ramp": ramp, "calibrate": calibrate, "cuda": cuda}
 
 
 def _add_ratios(rows):

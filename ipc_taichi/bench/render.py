@@ -121,7 +121,7 @@ def render_markdown(results):
             f"{r.get('speedup_vs_numpy', float('nan')):.1f}x |")
     lines += ["", "Notes:", ""] + [f"- {n}" for n in results["notes"]]
     lines += ["", _floor_text(results), ""]
-    for section in (render_pipeline(results.get("pipeline")),
+    for section in (render_pipeline(results.get("pipeline")), render_section(results.get("ramp")),
                     render_section(results.get("calibrate")), render_cuda(results.get("cuda"))):
         if section:
             lines += [section]
