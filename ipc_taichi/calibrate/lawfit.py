@@ -14,25 +14,29 @@ of the law), flats give ``N = S`` (``alpha(S, S)``, its diagonal).
    by each form:
 
    - ``constant``: one number;
-   - ``donlon2018_free``: the paper's family ``a exp(-|S-N|/s_d) +
-     b exp(-sqrt(S^2+N^2)/s_l) + c`` with free amplitudes of either sign
-     and free scales (alpha >= 0 enforced: ``min(a,0) + min(b,0) + c >= 0``);
    - ``smooth(dh, dd)``: a tabulated symmetric law built from two smooth
      curves, polynomials of degree ``dh`` and ``dd`` in ``log10 S``:
      ``h(S) = alpha(S, 0)`` and ``d(S) = alpha(S, S)``, joined by the
      asymmetry ``t = |S-N| / (S+N)``:
      ``alpha(S, N) = (1 - t) d((S+N)/2) + t h(S+N)``. Symmetric by
-     construction, exact on both cross-sections, free to rise or fall.
+     construction, exact on both cross-sections, free to rise or fall;
+   - ``total(deg)``: ``P(S + N) + c t``, the coupling of a pair set by its
+     total charge, so both cross-sections constrain one curve;
+   - ``donlon2018_free``: the paper's family ``a exp(-|S-N|/s_d) +
+     b exp(-sqrt(S^2+N^2)/s_l) + c`` with free amplitudes of either sign and
+     free scales, fitted and scored but never chosen (:data:`SCORED_ONLY`).
 
    The form is chosen by **held-out evidence** (:func:`choose_law`): each
    form is fitted on all folds of the data but one (hot pixels by position,
-   flat-ramp blocks) and scored on the fold left out; a richer form replaces
-   a simpler one only when it predicts the held-out points better by
-   :data:`MARGIN` standard errors, and a form whose measured cross-sections
-   are not monotone must beat the best monotone one. Chi^2 on the fitted
-   points (and BIC) are reported, not used: with errors that are too small
-   they reward wiggles. Outside the measured range of ``S + N`` every law is
-   held at its end value (said in the result).
+   flat-ramp blocks, stripes of one-level flats) and scored on the fold left
+   out. The constant is kept unless some form predicts the held-out points
+   better by :data:`MARGIN` standard errors; then the form that predicts
+   them best is chosen, monotone where it is well measured unless a
+   non-monotone one wins by the same margin. Chi^2 on the fitted points (and
+   BIC) are reported, not used: with errors that are too small they reward
+   wiggles. Each curve is held at its end value beyond the range of its
+   well-measured points, and outside the measured ``S + N`` the result says
+   the law is held.
 
    With only one cross-section measured, the other is assumed to follow the
    same function of ``S + N`` (``alpha(S, S) = alpha(2S, 0)``), and the result
