@@ -226,36 +226,12 @@ def charge_units(bunit, bunit_keyword, gain, gain_keyword, shape2d, label, sourc
 
 # ---- FITS ----------------------------------------------------------------------------
 
-def _raw_ramp_index(hdul, hdu):
-    """The index of the science HDU when it is an integer 4-D ramp, else None."""
-    names = [(h.name or "").upper() for h in hdul]
-    try:
-        if hdu is not None:
-            index = hdul.index_of(hdu)
-        elif "SCI" in names:
-            index = names.index("SCI")
-        else:
-            index = next(k for k, h in enumerate(hdul)
-                         if h.is_image and h.header.get("NAXIS", 0) > 0)
-    except (KeyError, IndexError, ValueError, StopIteration):
-        return None
-    h = hdul[index]
-    return index if h.is_image and h.header.get("NAXIS") == 4 and h.header["BITPIX"] > 0 \
-        else None
-
-
 def _science_hdu(path, hdul, hdu):
-    """The science HDU as ``decouple`` chooses it (its first), except that a
-    raw integer 4-D ramp (``_uncal``), refused there for its bias, is
-    accepted: calibrate subtracts the first read."""
-    try:
-        index, label = science_indices(path, hdul, hdu)[0]
-        return index, label, False
-    except IPCInputError:
-        index = _raw_ramp_index(hdul, hdu)
-        if index is None:
-            raise
-        return index, f"{path}[{hdu_label(hdul, index)}]", True
+    """The science HDU as ``decouple`` chooses it (its first), a raw integer
+    4-D ramp (``_uncal``) accepted: calibrate subtracts the first read."""
+    index, label = science_indices(path, hdul, hdu, raw_ok=True)[0]
+    h = hdul[index]
+    return index, label, h.header.get("NAXIS") == 4 and h.header["BITPIX"] > 0
 
 
 def _check_reftype(primary, label):

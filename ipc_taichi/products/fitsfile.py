@@ -86,7 +86,7 @@ def is_compressed(hdu):
     return isinstance(hdu, fits.CompImageHDU)
 
 
-def _check_science(path, hdul, index):
+def _check_science(path, hdul, index, raw_ok=False):
     h = hdul[index]
     label = f"{path}[{hdu_label(hdul, index)}]"
     if not h.is_image:
@@ -102,17 +102,19 @@ def _check_science(path, hdul, index):
     if naxis not in (2, 3, 4):
         raise IPCInputError(f"{label}: expected a 2-D image, a 3-D stack or a 4-D ramp, got "
                             f"{naxis} axes")
-    if naxis == 4 and h.header["BITPIX"] > 0:
+    if naxis == 4 and h.header["BITPIX"] > 0 and not raw_ok:
         raise IPCInputError(f"{label}: an integer 4-D ramp is raw (_uncal) data with the bias "
                             "in it; subtract the bias first (calwebb_detector1 through the "
                             "superbias step) and decouple that ramp")
     return label
 
 
-def science_indices(path, hdul, hdu):
+def science_indices(path, hdul, hdu, raw_ok=False):
     """The science HDUs: ``hdu`` if given, else every ``SCI`` HDU (each read
     of a multi-read product), else the first image HDU with data. Returns
-    ``[(index, label)]``; refuses tables, empty HDUs and bit-flag HDUs."""
+    ``[(index, label)]``; refuses tables, empty HDUs and bit-flag HDUs, and
+    raw integer 4-D ramps (their bias) unless ``raw_ok`` (calibrate, which
+    subtracts the first read)."""
     if hdu is None:
         indices = [k for k, h in enumerate(hdul) if (h.name or "").upper() == "SCI"]
         if not indices:
@@ -132,7 +134,7 @@ def science_indices(path, hdul, hdu):
             raise IPCInputError(f"{path}{where}: no such HDU (file has {len(hdul)}: "
                                 f"{listing})") from None
         indices = [index]
-    return [(k, _check_science(path, hdul, k)) for k in indices]
+    return [(k, _check_science(path, hdul, k, raw_ok)) for k in indices]
 
 
 class RawImage:
