@@ -270,17 +270,17 @@ def write_figures(folder, document, law, geometry):
         _covariance_figure(axes, curves)
         save(fig, "calibrate_covariance.png")
     if signals:
-        paths += _direction_figures(folder, plt, hot_rows, flat_rows, law, geometry, signals)
+        for name, fig in _direction_figures(plt, hot_rows, flat_rows, law, geometry, signals):
+            save(fig, f"calibrate_{name}.png")
     return paths
 
 
-def _direction_figures(folder, plt, hot_rows, flat_rows, law, geometry, signals):
-    """One PNG per direction: measured points (hot pixels at (S, B), flats at
+def _direction_figures(plt, hot_rows, flat_rows, law, geometry, signals):
+    """``(direction, figure)`` per direction: measured points (hot pixels at (S, B), flats at
     (S, S)) against the fitted ``w alpha``."""
     weights = {"x": geometry.weight(0, 1), "y": geometry.weight(1, 0),
                "diagonal": geometry.weight(1, 1), "second_x": geometry.weight(0, 2),
                "second_y": geometry.weight(2, 0)}
-    paths = []
     grid = np.geomspace(max(min(signals) * 0.7, 1.0), max(signals) * 1.3, 200)
     for name in DIRECTIONS:
         fig, ax = plt.subplots(figsize=(6, 4))
@@ -303,9 +303,4 @@ def _direction_figures(folder, plt, hot_rows, flat_rows, law, geometry, signals)
         ax.set_ylabel(f"coupling, {name} [%]")
         ax.set_title(f"Measured coupling ({name}) against the calibrated law")
         ax.legend(fontsize=8)
-        fig.tight_layout()
-        path = os.path.join(folder, f"calibrate_{name}.png")
-        fig.savefig(path, dpi=100)
-        plt.close(fig)
-        paths.append(path)
-    return paths
+        yield name, fig
