@@ -291,7 +291,7 @@ def _origin(own, product, shape2d):
     for keys in (("SUBSTRT1", "SUBSTRT2"), ("SLTSTRT1", "SLTSTRT2")):
         x0, y0 = own(keys[0]), own(keys[1])
         if x0 is not None and y0 is not None:
-            return int(x0), int(y0), f"{keys[0][:-1]}1/2 of the science header"
+            return int(x0), int(y0), f"{keys[0][:-1]}1/2"
     x0, y0 = product("SUBSTRT1"), product("SUBSTRT2")
     size = (product("SUBSIZE1"), product("SUBSIZE2"))
     if x0 is None or y0 is None:

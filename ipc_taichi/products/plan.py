@@ -214,7 +214,8 @@ class ProductPlan:
                           self.pedestal_text, first.coadds, arch, precision, tol, max_iter,
                           tile, self.complete)
         for a in self.arrays:
-            prov.add_hdu(a.index, a.name, a.label, a.region, a.units_text, a.exptime, a.frames)
+            prov.add_hdu(a.index, a.name, a.label, a.region, a.units_text, a.exptime, a.frames,
+                         a.shape[-2:])
         return prov
 
 
