@@ -75,30 +75,10 @@ def process_asdf(input_path, output_path, operation="decouple", *, model=None, o
         raise IPCInputError(f"{input_path}: not a readable Roman datamodel "
                             f"({type(exc).__name__})") from None
     with dm:
-        kind = type(dm).__name__
-        if kind == "ScienceRawModel":
-            raise IPCInputError(f"{label}: raw level-1 resultants (uint16) hold the bias; "
-                                "subtract it first (romancal through the refpix step) and "
-                                "decouple that RampModel")
-        if kind not in ("ImageModel", "RampModel"):
-            raise IPCInputError(f"{label}: a {kind}; give a level-2 ImageModel or a RampModel")
-        ramp = kind == "RampModel"
-        names = ("pixeldq", "groupdq") if ramp else ("dq",)
-        try:  # a truncated file fails here, when its blocks are read
-            data = np.asarray(dm.data)
-            flags = [np.asarray(dm[name]) for name in names if name in dm and dm[name] is not None]
-        except Exception as exc:
-            raise IPCInputError(f"{input_path}: its arrays cannot be read, the file may be "
-                                f"truncated ({type(exc).__name__})") from None
-        if data.dtype.kind != "f":
-            raise IPCInputError(f"{label}: integer data ({data.dtype}); subtract the bias first")
+        kind, ramp, data, flags = _arrays(dm, input_path, label)
         if "ipc_taichi" in dm.meta and dm.meta["ipc_taichi"].get("operation") == "decouple":
             warnings.warn(f"{label}: IPC was already corrected by ipc_taichi; correcting again",
                           cv.ProductWarning, stacklevel=2)
-        for name, f in zip(names, flags):
-            if f.shape != data.shape[data.ndim - f.ndim:]:
-                raise IPCInputError(f"{input_path}[{name}]: shape {f.shape} does not match "
-                                    f"the data {data.shape}")
         if options.output_dtype not in (None, "same") and \
                 np.dtype(options.output_dtype) != data.dtype:
             raise IPCInputError(f"{label}: a Roman product keeps its schema's dtype "
@@ -132,6 +112,33 @@ def process_asdf(input_path, output_path, operation="decouple", *, model=None, o
             "iterations": max(i.iterations for i in infos) if operation == "decouple" else 0,
             "converged": converged, "law": p.model.law.name, "edge": p.model.edge,
             "masked_unphysical": record.masked}
+
+
+def _arrays(dm, input_path, label):
+    """The product's kind, whether a ramp, its ``data`` and
+    the DQ arrays present; raw, unknown and integer products refused."""
+    kind = type(dm).__name__
+    if kind == "ScienceRawModel":
+        raise IPCInputError(f"{label}: raw level-1 resultants (uint16) hold the bias; "
+                            "subtract it first (romancal through the refpix step) and "
+                            "decouple that RampModel")
+    if kind not in ("ImageModel", "RampModel"):
+        raise IPCInputError(f"{label}: a {kind}; give a level-2 ImageModel or a RampModel")
+    ramp = kind == "RampModel"
+    names = ("pixeldq", "groupdq") if ramp else ("dq",)
+    try:  # a truncated file fails here, when its blocks are read
+        data = np.asarray(dm.data)
+        flags = [np.asarray(dm[name]) for name in names if name in dm and dm[name] is not None]
+    except Exception as exc:
+        raise IPCInputError(f"{input_path}: its arrays cannot be read, the file may be "
+                            f"truncated ({type(exc).__name__})") from None
+    if data.dtype.kind != "f":
+        raise IPCInputError(f"{label}: integer data ({data.dtype}); subtract the bias first")
+    for name, f in zip(names, flags):
+        if f.shape != data.shape[data.ndim - f.ndim:]:
+            raise IPCInputError(f"{input_path}[{name}]: shape {f.shape} does not match "
+                                f"the data {data.shape}")
+    return kind, ramp, data, flags
 
 
 def _facts(dm, kind, label, shape, flags):
