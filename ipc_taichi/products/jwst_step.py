@@ -27,10 +27,18 @@ groups still hold the bias, which is not collected charge. The step then
 needs the superbias (a local file, ``superbias=``): it subtracts it, corrects,
 and adds it back, so the following steps see what they expect. A ramp whose
 ``superbias`` step is already complete (``meta.cal_step.superbias``) is
-taken as bias-free. The DQ and reference-pixel rules are those of
-:mod:`ipc_taichi.products.conventions` (``pixeldq`` and ``groupdq``
-honoured; the 4-pixel reference border of near-IR full frames, from the
-``REFERENCE_PIXEL`` flags, never changed and treated as zero signal).
+taken as bias-free.
+
+The Step asks the same plan as ``ipc-taichi decouple``
+(:mod:`ipc_taichi.products.plan`: units, gain, DQ bits, reference pixels,
+edge), reading the datamodel's values by their FITS keyword names, and runs
+the same correction: on the same file and model the two give bit-identical
+science and record the same IPC keywords (``extra_fits``) and HISTORY
+(``meta.cal_step.ipc`` is ``S_IPC``). ``edge=`` is the rule asked for; the
+frame decides what it gets (``zero`` beside reference pixels, else what was
+asked, else ``isolated`` for a subarray inside the detector). A rate or
+rateints model is corrected too (DN/s and its integration time). A model
+without ``pixeldq``/``groupdq`` is all good.
 """
 
 import logging
@@ -211,7 +219,7 @@ def correct_ramp(ramp, coupling, gain, superbias=None, dq_bits=None, refpix=None
 
 
 class IPCTaichiStep(Step):
-    """Remove signal-dependent IPC (Donlon, Ninkov & Baum 2018) from a ramp."""
+    """Remove signal-dependent IPC (Donlon, Ninkov & Baum 2018) from a ramp (or a rate)."""
 
     class_alias = "ipc_taichi"
 
