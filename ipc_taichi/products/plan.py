@@ -46,7 +46,7 @@ from .gain import read_frame, read_gain
 from .provenance import Provenance
 
 __all__ = ["ArrayFacts", "ArrayPlan", "Layout", "ProductPlan", "Zeroth", "plan_product",
-           "plan_array", "dq_bits_of", "layout_of", "edge_of", "BEYOND"]
+           "plan_array", "dq_bits_of", "say_lacking", "layout_of", "edge_of", "BEYOND"]
 
 BEYOND = ("reference", "pixels", "unknown")
 """What lies beyond a science region's edge: reference pixels (zero-signal
