@@ -160,7 +160,7 @@ def correct_model(datamodel, coupling, options, superbias=None):
         if mask is not None:
             untouched |= mask
         out[untouched] = data[untouched]
-    datamodel.data = out
+    datamodel.data = out  # err and the variances beside it: as they came (the plan's place)
     from .. import runtime
 
     rt = runtime.current()

@@ -94,7 +94,7 @@ def process_asdf(input_path, output_path, operation="decouple", *, model=None, o
                                      scale=p.scale, out=out, max_iter=max_iter, tol=tol,
                                      arch=options.arch, precision=options.precision,
                                      label=label, unphysical=record)
-        dm.data = out
+        dm.data = out  # err and the variances beside it: as they came (the plan's place)
         from .. import runtime
 
         rt = runtime.current()
