@@ -296,7 +296,7 @@ def test_refpix_option_and_gain_image(cli, tmp_path, rng):
     assert np.abs(got * gain - truth_e)[far].max() < 2e-5 * truth_e.max()
     assert (got[:BORDER] == 7.0).all()
     # a 1-based FITS section [x1:x2,y1:y2], in the science HDU's header
-    assert fits.getheader(out)["IPCREFPX"] == f"[5:{shape[1] - 4},5:{shape[0] - 4}]"
+    assert fits.getheader(out)["IPCSCIRG"] == f"[5:{shape[1] - 4},5:{shape[0] - 4}]"
 
 
 def test_dq_hdu_is_refused_as_data(cli, tmp_path, rate_file):

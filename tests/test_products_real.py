@@ -106,7 +106,7 @@ def test_ima_every_read_with_its_samptime_and_the_zeroth_read(cli, tmp_path, ima
             border[5:-5, 5:-5] = False
             assert got[border].tobytes() == before[border].tobytes()  # the 5-pixel border
             assert b[k].header["IPCTIME"] == t and b[k].header["IPCCONV"] is True
-            assert b[k].header["IPCREFPX"] == f"[6:{N_SCI + 5},6:{N_SCI + 5}]"
+            assert b[k].header["IPCSCIRG"] == f"[6:{N_SCI + 5},6:{N_SCI + 5}]"
             truth = pedestal if t == 0 else rate
             err = np.abs(got - truth)[~border]
             if ver == 1:  # the saturated pixel keeps its value; ring 1 keeps ~alpha of it

@@ -51,8 +51,8 @@ import numpy as np
 from ..errors import IPCInputError
 from ..fitsio import parse_hdu
 from ..products import conventions as cv
-from ..products import missions
-from ..products.fits import science_region_of
+from ..products import missions, plan
+from ..products.fits import array_facts
 from ..products.fitsfile import (
     flag_hdus,
     hdu_label,
@@ -90,7 +90,8 @@ class ChargeFrames:
     frames per integration), ``units_note`` (one sentence), ``gain`` (e-/DN
     used, the median of a gain image; None for electrons), ``gain_source``
     ("given", "GAIN keyword" or None), ``saturation`` (e-, or None),
-    ``first_read_subtracted`` (bool), ``role``.
+    ``first_read_subtracted`` (bool), ``dq_note`` (the DQ names the file's
+    own ``DQ_DEF`` lacks, one sentence, or None), ``role``.
     """
 
     path: str
@@ -257,14 +258,12 @@ def _read_fits(path, hdu, gain, dq_bits, refpix, bunit):
             bunit, keyword(hdul, index, "BUNIT"), gain, keyword(hdul, index, "GAIN"), shape2d,
             label)
         data = np.asarray(read_array(path, hdul, index), dtype=np.float64) * scale
-        mission = missions.recognise(hdul[0].header, hdul[index].header)
-        bits = _file_dq_bits(hdul, dq_bits, label)
-        if bits is None:
-            bits = cv.parse_dq_bits(dq_bits, mission.dq_flags) & ~cv.REFERENCE_PIXEL
-        saturated_bit = bits & (missions.dq_def(hdul) or mission.dq_flags).get("SATURATED", 0)
+        mission = missions.recognise(hdul[0].header, hdul[index].header, hdul)
+        bits, lacking = plan.dq_bits_of(dq_bits, mission)
+        saturated_bit = bits & mission.flag("SATURATED")
         flags = flag_hdus(hdul, index, shape, path)
-        region, inside = science_region_of(path, hdul, index, flags, shape2d, refpix, mission,
-                                           label)
+        layout = plan.layout_of(shape2d, mission, array_facts(path, hdul, index, label), refpix)
+        region, inside = layout.region, layout.inside
         mask = np.zeros(shape, dtype=bool)
         saturated = np.zeros(shape, dtype=bool)
         for k in flags:
@@ -286,28 +285,20 @@ def _read_fits(path, hdu, gain, dq_bits, refpix, bunit):
         data = data - data[:, :1]
         mask = mask | mask[:, :1]
         level = None
-    info.update(saturation=level, first_read_subtracted=raw)
+    info.update(saturation=level, first_read_subtracted=raw, dq_note=_dq_note(lacking, path))
     frames = _finish(path, label, data, mask, region, inside, units_text, info)
     return frames, len(shape), keys, (_as4d(saturated), " or ".join(said))
 
 
-def _file_dq_bits(hdul, dq_bits, label):
-    """The bits of ``dq_bits`` by the file's own ``DQ_DEF`` table alone
-    (reference files define their own: a NIRSpec dark has HOT = 4, which is
-    JUMP_DET in science products, so the mission's names must not fill in);
-    None when the file has no such table. Names the table does not define
-    are left out."""
-    names = missions.dq_def(hdul)
-    if not names:
+def _dq_note(lacking, path):
+    """The sentence saying which DQ names the file's own ``DQ_DEF`` lacks (a
+    NIRSpec dark defines HOT = 4, JUMP_DET in science products: the
+    mission's names never fill in; :func:`ipc_taichi.products.plan.dq_bits_of`),
+    or None."""
+    if not lacking:
         return None
-    bits = 0
-    for item in str(dq_bits).replace("+", ",").split(","):
-        item = item.strip()
-        if item.isdigit():
-            bits |= int(item)
-        elif item.upper() in names:
-            bits |= names[item.upper()]
-    return bits & ~(2 ** 31)
+    return (f"{path}[DQ_DEF] defines no {', '.join(lacking)}: those pixels are not left out "
+            "by name")
 
 
 # ---- Roman ASDF ----------------------------------------------------------------------
@@ -328,7 +319,8 @@ def _read_asdf(path, gain, dq_bits, refpix, bunit):
         scale, units_text, info = charge_units(bunit, "DN", gain, None, data.shape[-2:], label,
                                                source="Roman schema")
         data = data * scale
-        bits = cv.parse_dq_bits(dq_bits, missions.roman_mission().dq_flags) & ~cv.REFERENCE_PIXEL
+        mission = missions.roman_mission()
+        bits, _ = plan.dq_bits_of(dq_bits, mission)
         mask = np.zeros(data.shape, dtype=bool)
         for name in ("pixeldq", "groupdq", "dq"):
             if name in dm and dm[name] is not None:
@@ -337,8 +329,10 @@ def _read_asdf(path, gain, dq_bits, refpix, bunit):
                     raise IPCInputError(f"{path}[{name}]: shape {f.shape} does not match the "
                                         f"data {data.shape}")
                 mask |= (f & bits) != 0
-    region, inside = cv.science_region(data.shape[-2:], refpix, None)
-    info.update(saturation=None, first_read_subtracted=False)
+    facts = plan.ArrayFacts(0, "data", label, data.shape)
+    layout = plan.layout_of(data.shape[-2:], mission, facts, refpix)
+    region, inside = layout.region, layout.inside
+    info.update(saturation=None, first_read_subtracted=False, dq_note=None)
     frames = _finish(path, label, data, mask, region, inside, units_text, info)
     return frames, data.ndim, {"hdu": "data"}
 

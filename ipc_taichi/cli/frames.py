@@ -146,10 +146,9 @@ def _product_options(args):
                    pedestal=args.pedestal, coadds=args.coadds, saturation=args.saturation,
                    unphysical="keep" if args.keep_unphysical else "mask",
                    model_chosen=model_is_explicit(args),
-                   # a model file's edge rule is what a plain image gets; a detector
-                   # product's frame decides its own (a measured coupling says nothing
-                   # of where a cut-out ends); only --edge overrides that
-                   edge_chosen=args.edge is not None)
+                   # the edge asked for (None: none); the product's frame decides what
+                   # it gets (products.plan.edge_of)
+                   edge=args.edge)
     if hasattr(args, "max_iter"):
         options.update(max_iter=args.max_iter, tol=args.tol, tile=args.tile)
     return ProductOptions.from_kwargs(**options)

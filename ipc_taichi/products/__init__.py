@@ -7,6 +7,9 @@ split between a Step that does I/O and a pure correction function):
   of a run as one value;
 - :mod:`ipc_taichi.products.missions`: what kind of product a file is, and
   its observatory's conventions (reference borders, DQ names, time keywords);
+- :mod:`ipc_taichi.products.plan`: everything decided about a product
+  before any pixel changes (units, gain, DQ bits, reference pixels, edge,
+  pedestal, coadds), once, for FITS, ASDF, the Step and calibrate;
 - :mod:`ipc_taichi.products.provenance`: what a product records (IPC
   keywords, HISTORY, ``S_IPC``);
 - :mod:`ipc_taichi.products.conventions`: which pixels take part (DQ,

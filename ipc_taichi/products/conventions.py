@@ -14,7 +14,8 @@ science array. The conventions (also in ``docs/products.md``):
 - **Reference pixels** (the ``REFERENCE_PIXEL`` flag, or a border of ``N``
   pixels) are never changed. The science region inside them is decoupled with
   the ``zero`` edge rule: reference pixels collect no photo-charge, so they
-  act as zero-signal neighbours, as the JWST ``ipc`` step treats them.
+  act as zero-signal neighbours, as the JWST ``ipc`` step treats them (where
+  they are and which edge a frame gets: :mod:`ipc_taichi.products.plan`).
   Reference-flagged pixels inside the science region (not a border) are
   treated as masked.
 - **NaN** keeps its meaning: a bad pixel, left NaN, not coupled.
@@ -48,7 +49,7 @@ from ..interrupts import check_stop
 from .missions import DEFAULT_DQ, JWST_DQ_FLAGS, REFERENCE_PIXEL
 
 __all__ = ["ProductWarning", "parse_dq_bits", "untrusted", "unusable_gain", "science_region",
-           "choose_edge", "charge_scale", "correct_frames", "Units", "RATE_UNITS",
+           "charge_scale", "correct_frames", "Units", "RATE_UNITS",
            "CHARGE_UNITS", "REFERENCE_PIXEL", "warn_unphysical", "PHYSICAL_RANGE", "unphysical",
            "Unphysical", "UNPHYSICAL_CHOICES"]
 
@@ -260,36 +261,6 @@ def science_region(shape, refpix=None, reference=None):
     return region, (inside if inside.any() else None)
 
 
-def choose_edge(model, region, shape, detector_product=False, edge_chosen=True):
-    """The model for the science region and why its edge rule was chosen.
-
-    Where the region leaves a reference border the edge is ``zero`` whatever
-    was asked: reference pixels collect no photo-charge, they are zero-signal
-    neighbours. A frame with no reference border, from a detector product
-    (a cut-out or a subarray: beyond its edge lie pixels holding charge like
-    its own), gets ``isolated`` unless the caller chose the edge: ``zero``
-    would invent a step at the edge. A plain image keeps the model's rule (the
-    paper's ``zero`` by default).
-
-    Returns
-    -------
-    model : CouplingModel
-    reason : str
-    """
-    from ..model import CouplingModel
-
-    whole = (region[0].stop - region[0].start, region[1].stop - region[1].start) == tuple(shape)
-    if not whole:
-        return (CouplingModel(model.law, model.geometry, "zero"),
-                "reference border: zero-signal neighbours")
-    if edge_chosen:
-        return model, "chosen"
-    if detector_product:
-        return (CouplingModel(model.law, model.geometry, "isolated"),
-                "no reference border (cut-out or subarray)")
-    return model, "default (plain image)"
-
-
 CHARGE_UNITS = ("electron", "electrons", "e", "e-", "electron(s)", "el")
 DN_UNITS = ("dn", "adu", "count", "counts", "ct", "cts", "data number")
 RATE_UNITS = tuple(u + "/s" for u in CHARGE_UNITS + DN_UNITS)
@@ -435,8 +406,8 @@ def correct_frames(data, operation, model, *, mask=None, region=None, scale=1.0,
         The science array in its own units (any real dtype).
     operation : {"couple", "decouple"}
     model : CouplingModel
-        The model of the science region (its edge rule chosen by
-        :func:`choose_edge`).
+        The model of the science region (its edge rule decided by
+        :func:`ipc_taichi.products.plan.edge_of`).
     mask : ndarray of bool, optional
         Untrusted pixels (True), broadcastable to ``data``: they keep their
         values and do not couple (see :func:`untrusted`).

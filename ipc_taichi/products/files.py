@@ -47,8 +47,8 @@ def decouple_file(input_path, output_path, law=None, geometry=None, edge=None, m
         model = CouplingModel.resolve(law, geometry, edge, model=model)
     elif law is not None:
         model = CouplingModel.resolve(law, geometry, edge or "zero")
-        if edge is None:
-            options = ProductOptions.from_kwargs(options, edge_chosen=False)
+        if edge is not None:  # asked for: the frame decides what it gets (plan.edge_of)
+            options = ProductOptions.from_kwargs(options, edge=edge)
     elif (geometry, edge) != (None, None):
         raise ValueError("decouple_file: geometry= and edge= need law= (or give model=)")
     res = process_product(input_path, output_path, "decouple", model=model, options=options,

@@ -54,11 +54,10 @@ from .fitsfile import (
     shape_of,
     write_skeleton,
 )
-from .gain import read_frame, read_gain
 from .options import ProductOptions, resolve_model
-from .provenance import Provenance
+from .plan import ArrayFacts, Zeroth, plan_product
 
-__all__ = ["process_fits", "science_region_of"]
+__all__ = ["process_fits", "array_facts"]
 
 
 def _check_paths(input_path, output_path, operation, options):
@@ -100,42 +99,33 @@ def _zeroth_read(hdul):
     return zero[0] if len(zero) == 1 else None
 
 
-def _integration_time(hdul, index, options):
-    if options.exptime is not None:
-        return options.exptime
-    for key in missions.TIME_KEYWORDS:
-        value = keyword(hdul, index, key)
-        if value is not None:
-            return value
-    return None
+def _facts(path, hdul, index, label, flags, zeroth):
+    """What HDU ``index`` says about itself (:class:`~ipc_taichi.products.plan.ArrayFacts`);
+    ``flags``: the indices of its bit-flag HDUs."""
+    shape = shape_of(hdul[index].header)
 
+    def own(key, h=hdul[index].header):
+        return h[key] if key in h and h[key] not in (None, "") else None
 
-def _coadds(hdul, index, options):
-    if options.coadds is not None:
-        return int(options.coadds)
-    for key in missions.COADD_KEYWORDS:
-        value = keyword(hdul, index, key)
-        if value is not None:
-            return int(value)
-    return 1
+    def product(key, h=hdul[0].header):
+        return h[key] if key in h and h[key] not in (None, "") else None
 
-
-def science_region_of(path, hdul, index, flags, shape2d, refpix, mission, label):
-    """The science region inside the reference pixels: ``--refpix`` if given,
-    else the REFERENCE_PIXEL flags of the first frame, else the observatory's
-    convention, else none. ``flags``: the indices of the bit-flag HDUs."""
-    reference = None
-    if refpix is None and flags:
+    def reference():
+        if not flags:
+            return None
         source = min(flags, key=lambda k: hdul[k].header["NAXIS"])
-        first = np.asarray(read_array(path, hdul, source)).reshape((-1,) + shape2d)[0]
-        reference = (first.astype(np.int64) & cv.REFERENCE_PIXEL) != 0
-    if refpix is None and (reference is None or not reference.any()):
-        reference = missions.reference_mask(mission, hdul[0].header, hdul[index].header,
-                                             shape2d)
-    try:
-        return cv.science_region(shape2d, refpix, reference)
-    except IPCInputError as exc:
-        raise IPCInputError(f"{label}: {exc}") from None
+        first = np.asarray(read_array(path, hdul, source)).reshape((-1,) + shape[-2:])[0]
+        return (first.astype(np.int64) & cv.REFERENCE_PIXEL) != 0
+
+    return ArrayFacts(index, hdu_label(hdul, index), label, shape, own, product, reference,
+                      zeroth=index == zeroth)
+
+
+def array_facts(path, hdul, index, label):
+    """The :class:`~ipc_taichi.products.plan.ArrayFacts` of one science HDU
+    (calibrate's reader asks the plan with it)."""
+    shape = shape_of(hdul[index].header)
+    return _facts(path, hdul, index, label, flag_hdus(hdul, index, shape, path), None)
 
 
 def _output_dtype(bitpix, output_dtype):
@@ -148,66 +138,31 @@ def _output_dtype(bitpix, output_dtype):
     return out
 
 
-def _plan(input_path, hdul, operation, model, options):
-    """Everything decided before the work, one entry per science HDU."""
-    primary = hdul[0].header
+def _plan(input_path, hdul, model, options):
+    """Everything decided before the work (:func:`~ipc_taichi.products.plan.plan_product`),
+    with what FITS adds: each science HDU's flag HDUs and output dtype."""
     sciences = science_indices(input_path, hdul, parse_hdu(options.hdu))
-    first_label = sciences[0][1]
-    missions.check_not_bias(primary, first_label)
-    mission = missions.recognise(primary, hdul[sciences[0][0]].header, hdul)
-    missions.check_model_chosen(mission, options.model_chosen, first_label)
-    bits = cv.parse_dq_bits(options.dq_bits, mission.dq_flags) & ~cv.REFERENCE_PIXEL
+    mission = missions.recognise(hdul[0].header, hdul[sciences[0][0]].header, hdul)
     zeroth = _zeroth_read(hdul)
-    pedestal_opt = "auto" if options.pedestal is None else options.pedestal
-    plans, pedestal, pedestal_text = [], None, "none"
+    flags, dtypes, facts = {}, {}, []
     for index, label in sciences:
-        h = hdul[index]
-        shape = shape_of(h.header)
-        shape2d = shape[-2:]
-        units = cv.parse_units(options.bunit if options.bunit is not None
-                               else keyword(hdul, index, "BUNIT"), label)
-        gain_value = options.gain if options.gain is not None else keyword(hdul, index, "GAIN")
-        if options.gain is not None and not units.needs_gain:
-            raise IPCInputError(f"{label}: a gain was given but the data are in "
-                                f"{units.text or 'electrons (no BUNIT)'}; give --bunit DN or "
-                                "DN/s if they are not")
-        _warn_if_corrected(hdul, index, label)
-        gain = read_gain(gain_value, shape2d)
-        is_zeroth = index == zeroth
-        exptime = None if is_zeroth else _integration_time(hdul, index, options)
-        if is_zeroth:  # a zeroth read holds the charge since reset, not a rate
-            units = cv.Units(units.kind.replace("_rate", ""), units.text)
-        coadds = _coadds(hdul, index, options)
-        scale, units_text = cv.charge_scale(
-            units, gain, exptime, label,
-            time_source="a SAMPTIME, EFFINTTM or EXPTIME keyword", coadds=coadds)
-        flags = flag_hdus(hdul, index, shape, input_path)
-        region, inside = science_region_of(input_path, hdul, index, flags, shape2d,
-                                           options.refpix, mission, label)
-        inner, edge_reason = cv.choose_edge(model, region, shape2d, mission.detector_product,
-                                            options.edge_chosen)
-        ped = None
-        if not is_zeroth and pedestal_opt not in ("none", "auto", False, 0, "0"):
-            pedestal = np.broadcast_to(np.asarray(read_frame(pedestal_opt, shape2d, "pedestal"),
-                                                  dtype=np.float64), shape2d)
-            pedestal_text = f"given: {str(pedestal_opt)[:40]} e-"
-            ped = pedestal
-        elif not is_zeroth and pedestal_opt == "auto" and zeroth is not None:
-            if shape_of(hdul[zeroth].header)[-2:] != shape2d:
-                raise IPCInputError(f"{label}: the zeroth read has another shape")
-            pedestal_text = f"zeroth read, HDU {zeroth} {hdu_label(hdul, zeroth)}"
-            ped = _zeroth_charge(input_path, hdul, zeroth, gain, options)
-        if ped is not None and options.tile:
-            raise IPCInputError(f"{label}: --tile cannot add the pedestal (zeroth read); run "
-                                "without --tile, or give --pedestal none")
-        plans.append(dict(index=index, label=label, shape=shape, units_text=units_text,
-                          exptime=exptime, scale=scale, flags=flags, region=region,
-                          inside=inside, model=inner, edge_reason=edge_reason, pedestal=ped,
-                          coadds=coadds,
-                          dtype=_output_dtype(h.header["BITPIX"], options.output_dtype)))
+        header = hdul[index].header
+        flags[index] = flag_hdus(hdul, index, shape_of(header), input_path)
+        dtypes[index] = _output_dtype(header["BITPIX"], options.output_dtype)
+        facts.append(_facts(input_path, hdul, index, label, flags[index], zeroth))
+    first = None
+    if zeroth is not None:
+        first = Zeroth(f"zeroth read, HDU {zeroth} {hdu_label(hdul, zeroth)}",
+                       shape_of(hdul[zeroth].header)[-2:],
+                       lambda gain: _zeroth_charge(input_path, hdul, zeroth, gain, options))
     all_sci = [k for k, hh in enumerate(hdul) if (hh.name or "").upper() == "SCI"]
-    complete = set(all_sci) <= {p["index"] for p in plans}
-    return mission, bits, plans, pedestal_text, complete
+    dq_where = next((f"{input_path}[{hdu_label(hdul, k)}]" for k, h in enumerate(hdul)
+                     if (h.name or "").upper() == "DQ_DEF"), None)
+    plan = plan_product(facts, mission, model, options, dq_where=dq_where, zeroth=first,
+                        complete=set(all_sci) <= {i for i, _ in sciences})
+    for index, label in sciences:
+        _warn_if_corrected(hdul, index, label)
+    return plan, flags, dtypes
 
 
 def _zeroth_charge(path, hdul, zeroth, gain, options):
@@ -251,10 +206,10 @@ def process_fits(input_path, output_path, operation="decouple", *, model=None, o
     _check_paths(input_path, output_path, operation, options)
     hdul = open_fits(input_path, memmap=True)
     with hdul:
-        mission, bits, plans, pedestal_text, complete = _plan(input_path, hdul, operation,
-                                                              model, options)
+        plan, flags, dtypes = _plan(input_path, hdul, model, options)
         if options.tile:
-            for k in [p["index"] for p in plans] + [f for p in plans for f in p["flags"]]:
+            for k in [p.index for p in plan.arrays] + [f for p in plan.arrays
+                                                        for f in flags[p.index]]:
                 if is_compressed(hdul[k]):
                     raise IPCInputError(
                         f"{input_path}[{hdu_label(hdul, k)}]: tile-compressed; --tile reads "
@@ -263,57 +218,53 @@ def process_fits(input_path, output_path, operation="decouple", *, model=None, o
         from .. import runtime
 
         rt = runtime.init(options.arch, options.precision)
-        prov = Provenance(operation, plans[0]["model"], plans[0]["edge_reason"], bits,
-                          pedestal_text, plans[0]["coadds"], rt.arch, rt.precision, tol,
-                          max_iter, options.tile, complete)
-        for p in plans:
-            frames = int(np.prod(p["shape"][:-2])) if len(p["shape"]) > 2 else 1
-            prov.add_hdu(p["index"], hdu_label(hdul, p["index"]), p["label"], p["region"],
-                         p["units_text"], p["exptime"], frames)
+        prov = plan.provenance(operation, rt.arch, rt.precision, tol, max_iter, options.tile)
 
         def headers():
             out = {}
-            for p in plans:
-                out[p["index"]] = prov.science(p["index"], science_header(
-                    hdul[p["index"]].header, p["dtype"]))
+            for p in plan.arrays:
+                out[p.index] = prov.science(p.index, science_header(
+                    hdul[p.index].header, dtypes[p.index]))
             out[0] = prov.primary(out[0] if 0 in out else hdul[0].header.copy())
             return out
 
-        science = {p["index"]: p["dtype"] for p in plans}
         with atomic_output(output_path, options.overwrite) as tmp:
             places = _write(output_path, lambda: write_skeleton(
-                tmp, input_path, hdul, headers(), science))
-            for p in plans:
-                _, _, offset = places[p["index"]]
-                out = np.memmap(tmp, dtype=p["dtype"].newbyteorder(">"), mode="r+",
-                                offset=offset, shape=p["shape"])
+                tmp, input_path, hdul, headers(), dtypes))
+            for p in plan.arrays:  # the per-HDU work of the plan
+                _, _, offset = places[p.index]
+                out = np.memmap(tmp, dtype=dtypes[p.index].newbyteorder(">"), mode="r+",
+                                offset=offset, shape=p.shape)
                 record = cv.Unphysical(options.unphysical)
                 try:
-                    prov.infos[p["index"]] = _correct(input_path, hdul, p, out, bits, options,
-                                                      operation, record)
-                    prov.unphysical[p["index"]] = record.masked
+                    prov.infos[p.index] = _correct(input_path, hdul, p, flags[p.index], out,
+                                                   plan.bits, options, operation, record)
+                    prov.unphysical[p.index] = record.masked
                     out.flush()
                 finally:
                     del out
+                # the arrays beside the science one (ERR, VAR_*) are copied as they are
             _write(output_path, lambda: _rewrite_headers(tmp, places, headers(), output_path))
-    infos = [i for p in plans for i in prov.infos[p["index"]]]
+    infos = [i for p in plan.arrays for i in prov.infos[p.index]]
     converged = None if operation == "couple" or tol == 0 else all(i.converged for i in infos)
-    return {"output": output_path, "label": plans[0]["label"], "frames": len(infos),
-            "infos": infos, "hdus": [p["label"] for p in plans],
+    first = plan.arrays[0]
+    return {"output": output_path, "label": first.label, "frames": len(infos),
+            "infos": infos, "hdus": [p.label for p in plan.arrays],
             "iterations": max(i.iterations for i in infos) if operation == "decouple" else 0,
-            "converged": converged, "law": plans[0]["model"].law.name,
-            "edge": plans[0]["model"].edge, "masked_unphysical": sum(prov.unphysical.values())}
+            "converged": converged, "law": first.model.law.name,
+            "edge": first.model.edge, "masked_unphysical": sum(prov.unphysical.values())}
 
 
-def _correct(input_path, hdul, plan, out, bits, options, operation, record):
-    flags = streams.Flags(input_path, hdul, plan["flags"], bits, plan["shape"], plan["inside"],
+def _correct(input_path, hdul, plan, flag_indices, out, bits, options, operation, record):
+    """Correct one science HDU of the plan (:class:`~ipc_taichi.products.plan.ArrayPlan`)."""
+    flags = streams.Flags(input_path, hdul, flag_indices, bits, plan.shape, plan.inside,
                           options.saturation, options.tile)
     if options.tile:
-        return streams.tiled(input_path, hdul, plan["index"], out, flags, plan["region"],
-                             plan["scale"], plan["model"], options, plan["label"], record)
-    return streams.whole(input_path, hdul, plan["index"], out, flags, plan["region"],
-                         plan["scale"], plan["model"], options, plan["label"],
-                         pedestal=plan["pedestal"], operation=operation, record=record)
+        return streams.tiled(input_path, hdul, plan.index, out, flags, plan.region,
+                             plan.scale, plan.model, options, plan.label, record)
+    return streams.whole(input_path, hdul, plan.index, out, flags, plan.region,
+                         plan.scale, plan.model, options, plan.label,
+                         pedestal=plan.pedestal, operation=operation, record=record)
 
 
 def _rewrite_headers(tmp, places, headers, output_path):

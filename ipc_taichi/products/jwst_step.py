@@ -27,10 +27,18 @@ groups still hold the bias, which is not collected charge. The step then
 needs the superbias (a local file, ``superbias=``): it subtracts it, corrects,
 and adds it back, so the following steps see what they expect. A ramp whose
 ``superbias`` step is already complete (``meta.cal_step.superbias``) is
-taken as bias-free. The DQ and reference-pixel rules are those of
-:mod:`ipc_taichi.products.conventions` (``pixeldq`` and ``groupdq``
-honoured; the 4-pixel reference border of near-IR full frames, from the
-``REFERENCE_PIXEL`` flags, never changed and treated as zero signal).
+taken as bias-free.
+
+The Step asks the same plan as ``ipc-taichi decouple``
+(:mod:`ipc_taichi.products.plan`: units, gain, DQ bits, reference pixels,
+edge), reading the datamodel's values by their FITS keyword names, and runs
+the same correction: on the same file and model the two give bit-identical
+science and record the same IPC keywords (``extra_fits``) and HISTORY
+(``meta.cal_step.ipc`` is ``S_IPC``). ``edge=`` is the rule asked for; the
+frame decides what it gets (``zero`` beside reference pixels, else what was
+asked, else ``isolated`` for a subarray inside the detector). A rate or
+rateints model is corrected too (DN/s and its integration time). A model
+without ``pixeldq``/``groupdq`` is all good.
 """
 
 import logging
@@ -47,16 +55,150 @@ from .. import __version__, iteration
 from ..model import CouplingModel
 from . import conventions as cv
 from . import missions
+from .options import ProductOptions
+from .plan import ArrayFacts, plan_product
 
-__all__ = ["IPCTaichiStep", "Detector1TaichiPipeline", "correct_ramp"]
+__all__ = ["IPCTaichiStep", "Detector1TaichiPipeline", "correct_ramp", "correct_model",
+           "plan_model"]
 
 log = logging.getLogger(__name__)
 
 
+def _keywords(datamodel):
+    """``key -> value`` of a JWST datamodel by its schema's FITS keyword names
+    (``SUBSTRT1`` is ``meta.subarray.xstart``), as the command line reads the
+    same file: ``TELESCOP`` is JWST, and a ``BUNIT`` the model lacks is its
+    kind's (:func:`~ipc_taichi.products.missions.jwst_units`)."""
+    cache = {}
+
+    def get(key):
+        if key not in cache:
+            paths = datamodel.find_fits_keyword(key)
+            value = datamodel[paths[0]] if paths else None
+            if value in (None, "") and key == "TELESCOP":
+                value = "JWST"
+            if value in (None, "") and key == "BUNIT":
+                value = missions.jwst_units(np.ndim(datamodel.data))
+            cache[key] = None if value == "" else value
+        return cache[key]
+    return get
+
+
+def _flags(datamodel, shape):
+    """The model's bit-flag arrays present (``pixeldq``, ``groupdq``, ``dq``):
+    a model without them (the pipeline's own test fixtures) is all good."""
+    found = []
+    for name in ("pixeldq", "groupdq", "dq"):
+        value = datamodel.instance.get(name)
+        if value is None:
+            continue
+        f = np.asarray(value)
+        if f.shape != shape[len(shape) - f.ndim:]:
+            raise ValueError(f"ipc_taichi: {name} has shape {f.shape}, the data {shape}")
+        found.append(f)
+    return found
+
+
+def plan_model(datamodel, coupling, options):
+    """The :class:`~ipc_taichi.products.plan.ProductPlan` of a JWST datamodel
+    (a ramp, a rate or a rateints), the one the command line makes of the same
+    file; and its flag arrays."""
+    data = np.asarray(datamodel.data)
+    get = _keywords(datamodel)
+    label = f"{datamodel.meta.filename or 'model'}[SCI]"
+    flags = _flags(datamodel, data.shape)
+
+    def reference():
+        if not flags:
+            return None
+        first = min(flags, key=np.ndim).reshape((-1,) + data.shape[-2:])[0]
+        return (first.astype(np.int64) & cv.REFERENCE_PIXEL) != 0
+
+    mission = missions.recognise({"TELESCOP": get("TELESCOP"), "INSTRUME": get("INSTRUME")})
+    facts = ArrayFacts(1, "SCI", label, data.shape, get, get, reference)
+    return plan_product([facts], mission, coupling, options), flags
+
+
+def correct_model(datamodel, coupling, options, superbias=None):
+    """Decouple a JWST datamodel's science array in place, as
+    :func:`ipc_taichi.products.process_fits` decouples the same file (the same
+    plan, the same correction, bit for bit), and record it: the IPC keywords
+    (``extra_fits``), HISTORY and ``meta.cal_step.ipc``.
+
+    Parameters
+    ----------
+    datamodel : RampModel, ImageModel or CubeModel
+        Groups in DN (ramps) or rates in DN/s.
+    coupling : CouplingModel
+        The model asked for (its edge: :func:`ipc_taichi.products.plan.edge_of`).
+    options : ProductOptions
+    superbias : ndarray, optional
+        Subtracted before and added back after (a ramp that holds the bias).
+
+    Returns
+    -------
+    infos : list of DecoupleInfo
+    provenance : Provenance
+    """
+    plan, flags = plan_model(datamodel, coupling, options)
+    p, = plan.arrays
+    data = np.asarray(datamodel.data)
+    work = data if superbias is None else data - superbias
+    mask = cv.untrusted(flags, plan.bits, data.shape, p.layout.inside_mask(), values=work,
+                        saturation=options.saturation)
+    out = np.empty(data.shape, dtype=data.dtype)
+    record = cv.Unphysical(options.unphysical)
+    _, infos = cv.correct_frames(work, "decouple", p.model, mask=mask, region=p.region,
+                                 scale=p.scale, out=out, max_iter=options.max_iter,
+                                 tol=options.tol, arch=options.arch,
+                                 precision=options.precision, label=p.label, unphysical=record)
+    if superbias is not None:
+        out += superbias.astype(out.dtype)
+        # pixels left alone (reference border, masked): exactly as they came
+        untouched = np.ones(data.shape, dtype=bool)
+        untouched[(Ellipsis,) + p.region] = False
+        if mask is not None:
+            untouched |= mask
+        out[untouched] = data[untouched]
+    datamodel.data = out  # err and the variances beside it: as they came (the plan's place)
+    from .. import runtime
+
+    rt = runtime.current()
+    prov = plan.provenance("decouple", rt.arch if rt else "", rt.precision if rt else "",
+                           options.tol, options.max_iter)
+    prov.infos[p.index] = infos
+    prov.unphysical[p.index] = record.masked
+    _record(datamodel, prov, p.index)
+    return infos, prov
+
+
+def _record(datamodel, prov, index):
+    """The run's record in the datamodel, as a FITS product gets it: the
+    primary's and the science HDU's IPC keywords (``extra_fits``), the HISTORY
+    lines, ``S_IPC`` as ``meta.cal_step.ipc``."""
+    from astropy.io import fits
+
+    primary, science = prov.primary(fits.Header()), prov.science(index, fits.Header())
+    extra = dict(datamodel.instance.get("extra_fits") or {})
+    for hdu, header in (("PRIMARY", primary), ("SCI", science)):
+        cards = [[c.keyword, c.value, c.comment] for c in header.cards
+                 if c.keyword not in ("HISTORY", "S_IPC")]
+        keys = {c[0] for c in cards}
+        section = dict(extra.get(hdu) or {})
+        kept = [list(c) for c in section.get("header", []) if c[0] not in keys]
+        section["header"] = kept + cards
+        extra[hdu] = section
+    datamodel.extra_fits = extra
+    for line in primary.get("HISTORY", []):
+        datamodel.add_history_entry(str(line))
+    datamodel.meta.cal_step.ipc = primary["S_IPC"]
+
+
 def correct_ramp(ramp, coupling, gain, superbias=None, dq_bits=None, refpix=None,
                  max_iter=iteration.MAX_ITER, tol=iteration.TOL, arch=None, precision=None,
-                 saturation=None):
-    """Decouple a ``RampModel`` in place, group by group; returns the infos.
+                 saturation=None, edge=None):
+    """Decouple a ``RampModel`` in place, group by group; returns the infos
+    (:func:`correct_model` with these options).
 
     Parameters
     ----------
@@ -67,51 +209,17 @@ def correct_ramp(ramp, coupling, gain, superbias=None, dq_bits=None, refpix=None
         e-/DN.
     superbias : ndarray, optional
         Subtracted before and added back after (for a ramp that holds the bias).
-    dq_bits, refpix, max_iter, tol, arch, precision, saturation :
+    dq_bits, refpix, max_iter, tol, arch, precision, saturation, edge :
         As for :func:`ipc_taichi.products.process_fits`.
     """
-    data = np.asarray(ramp.data)
-    label = f"{ramp.meta.filename or 'ramp'}[SCI]"
-    shape2d = data.shape[-2:]
-    scale, _ = cv.charge_scale(cv.Units("dn", "DN"), gain, None, label)
-    pixeldq = np.asarray(ramp.pixeldq, dtype=np.int64)
-    groupdq = np.asarray(ramp.groupdq, dtype=np.int64)
-    reference = (pixeldq & cv.REFERENCE_PIXEL) != 0
-    if refpix is None and not reference.any():  # the detector's own border, by convention
-        header = {"SUBARRAY": ramp.meta.subarray.name, "SUBSTRT1": ramp.meta.subarray.xstart,
-                  "SUBSTRT2": ramp.meta.subarray.ystart}
-        mission = missions.recognise({"TELESCOP": "JWST",
-                                      "INSTRUME": ramp.meta.instrument.name or ""}, header)
-        reference = missions.reference_mask(mission, header, header, shape2d)
-    region, inside = cv.science_region(shape2d, refpix, reference)
-    bits = cv.parse_dq_bits(dq_bits, missions.recognise({"TELESCOP": "JWST"}).dq_flags) \
-        & ~cv.REFERENCE_PIXEL
-    full_inside = None
-    if inside is not None:
-        full_inside = np.zeros(shape2d, dtype=bool)
-        full_inside[region] = inside
-    work = data if superbias is None else data - superbias
-    mask = cv.untrusted([pixeldq, groupdq], bits, data.shape, full_inside, values=work,
-                        saturation=saturation)
-    inner, _ = cv.choose_edge(coupling, region, shape2d, True, True)
-    out = np.empty(data.shape, dtype=data.dtype)
-    _, infos = cv.correct_frames(work, "decouple", inner, mask=mask, region=region,
-                                 scale=scale, out=out, max_iter=max_iter, tol=tol, arch=arch,
-                                 precision=precision, label=label)
-    if superbias is not None:
-        out += superbias.astype(out.dtype)
-        # pixels left alone (reference border, masked): exactly as they came
-        untouched = np.ones(data.shape, dtype=bool)
-        untouched[(Ellipsis,) + region] = False
-        if mask is not None:
-            untouched |= mask
-        out[untouched] = data[untouched]
-    ramp.data = out
-    return infos
+    options = ProductOptions.from_kwargs(gain=gain, dq_bits=dq_bits, refpix=refpix,
+                                         max_iter=max_iter, tol=tol, arch=arch,
+                                         precision=precision, saturation=saturation, edge=edge)
+    return correct_model(ramp, coupling, options, superbias)[0]
 
 
 class IPCTaichiStep(Step):
-    """Remove signal-dependent IPC (Donlon, Ninkov & Baum 2018) from a ramp."""
+    """Remove signal-dependent IPC (Donlon, Ninkov & Baum 2018) from a ramp (or a rate)."""
 
     class_alias = "ipc_taichi"
 
@@ -119,7 +227,7 @@ class IPCTaichiStep(Step):
         model = string(default=None)  # coupling-model file (JSON, from ipc-taichi calibrate)
         law = string(default=None)  # coupling law alpha(S,N), in electrons (or model=)
         geometry = string(default=None)  # neighbour weights, e.g. horizontal=1,vertical=0.9
-        edge = option('zero', 'isolated', default='zero')  # beyond the frame
+        edge = option('zero', 'isolated', default=None)  # asked for; default: from the frame
         gain = float(default=None)  # e-/DN (required)
         superbias = string(default=None)  # superbias file, when the ramp holds the bias
         dq_bits = string(default='DO_NOT_USE,SATURATED')  # flags of pixels left out
@@ -141,24 +249,37 @@ class IPCTaichiStep(Step):
         """The coupling model of the parameters: ``model`` (a file) or ``law``
         (with ``geometry``, ``edge``); the paper's law is never a silent default."""
         if self.model:
-            if self.law or self.geometry:
-                raise ValueError("ipc_taichi: give model= or law=/geometry=, not both")
+            if self.law or self.geometry or self.edge:
+                raise ValueError("ipc_taichi: give model= or law=/geometry=/edge=, not both "
+                                 "(the model file holds its law, geometry and edge)")
             return CouplingModel.load(self.model)
         if not self.law:
             raise ValueError("ipc_taichi: a JWST ramp needs its detector's coupling: give "
                              "model=FILE (from 'ipc-taichi calibrate') or law=...")
         return CouplingModel.resolve(self.law, self.geometry, self.edge)
 
+    def options(self):
+        """The :class:`~ipc_taichi.products.options.ProductOptions` of the
+        parameters (those of ``ipc-taichi decouple``)."""
+        return ProductOptions.from_kwargs(
+            gain=self.gain, dq_bits=self.dq_bits, refpix=self.refpix,
+            saturation=self.saturation, max_iter=self.max_iter, tol=self.tol, arch=self.arch,
+            precision=self.precision, edge=self.edge)
+
     def process(self, step_input):
-        """Decouple every group of the ramp. ``meta.cal_step.ipc`` is
-        ``COMPLETE`` when every group met the stopping rule, else ``FAILED``
-        (the data are still corrected, to the last iteration's accuracy)."""
-        result = self.prepare_output(step_input, open_as_ramp=True)
+        """Decouple every group of a ramp (or a rate, rateints) as the command
+        line decouples the same file, and record it as it does (IPC keywords,
+        HISTORY). ``meta.cal_step.ipc`` is ``COMPLETE`` when every group met
+        the stopping rule, else ``FAILED`` (the data are still corrected, to
+        the last iteration's accuracy)."""
+        result = self.prepare_output(step_input)
+        if np.ndim(result.data) == 4 and np.asarray(result.data).dtype.kind != "f":
+            result = self.prepare_output(step_input, open_as_ramp=True)  # raw: as a ramp
         if self.gain is None:
             raise ValueError("ipc_taichi: give the gain in e-/DN (gain=...)")
         coupling = self.coupling()
         bias = None
-        if result.meta.cal_step.superbias != "COMPLETE":
+        if np.ndim(result.data) == 4 and result.meta.cal_step.superbias != "COMPLETE":
             if not self.superbias:
                 raise ValueError("ipc_taichi: the ramp still holds the bias (superbias step "
                                  "not run): give superbias=FILE, or run after superbias")
@@ -166,20 +287,14 @@ class IPCTaichiStep(Step):
 
             with SuperBiasModel(self.superbias) as sb:
                 bias = np.asarray(sb.data, dtype=np.float64)
-        infos = correct_ramp(result, coupling, self.gain, superbias=bias, dq_bits=self.dq_bits,
-                             refpix=self.refpix, max_iter=self.max_iter, tol=self.tol,
-                             arch=self.arch, precision=self.precision,
-                             saturation=self.saturation)
-        unconverged = sum(1 for i in infos if not i.converged)
-        log.info("ipc_taichi %s: %s, gain %g e-/DN, %d groups, at most %d iterations",
-                 __version__, coupling.describe(), self.gain, len(infos),
-                 max(i.iterations for i in infos))
-        if unconverged and self.tol > 0:
+        infos, prov = correct_model(result, coupling, self.options(), superbias=bias)
+        log.info("ipc_taichi %s: %s, edge %s (%s), gain %g e-/DN, %d frames, at most %d "
+                 "iterations", __version__, coupling.describe(), prov.model.edge,
+                 prov.edge_reason, self.gain, len(infos), max(i.iterations for i in infos))
+        if result.meta.cal_step.ipc == "FAILED":
             log.warning("ipc_taichi: %d of %d groups did not meet the stopping rule; "
-                        "cal_step.ipc = FAILED", unconverged, len(infos))
-            result.meta.cal_step.ipc = "FAILED"
-        else:
-            result.meta.cal_step.ipc = "COMPLETE"
+                        "cal_step.ipc = FAILED", sum(1 for i in infos if not i.converged),
+                        len(infos))
         return result
 
 

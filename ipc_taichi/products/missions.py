@@ -10,13 +10,27 @@ conventions from it (``docs/products.md`` says the same in words):
   without ``--law`` or ``--model`` it is refused (:func:`check_model_chosen`).
   Such a file is also a *detector product*: the edge rule is chosen from it.
   JWST, HST and Roman products get their observatory's conventions below.
-- **Reference borders** of full frames: JWST 4 pixels (2048x2048; a subarray
-  by its ``SUBSTRT``/``SUBSIZE`` keywords), HST WFC3/IR 5 pixels (the
-  ``_ima`` frames of 1024, 522, 266, 138 and 74 pixels; ``_flt`` frames are
-  already trimmed), Roman 4 pixels (4096x4096 ramps).
+- **Reference borders** (:func:`reference_border`, what
+  :func:`ipc_taichi.products.plan.layout_of` falls back on without
+  ``REFERENCE_PIXEL`` flags): JWST near-IR 4 pixels on each side of the
+  2048x2048 detector, MIRI 4 columns on each side of its 1032-column
+  detector (no rows), as the JWST ``ipc`` step's ``get_num_ref_pixels``
+  counts them; a subarray gets the sides that reach the detector's border,
+  from the geometry keywords of the science array's own header
+  (``SUBSTRT1/2``, or a NIRSpec slit cut-out's ``SLTSTRT1/2``), or of the
+  primary header only when its ``SUBSIZE1/2`` say it describes this array
+  (an MSA slit cut-out is not the whole exposure); HST WFC3/IR 5 pixels
+  (the ``_ima`` frames of 1024, 522, 266, 138 and 74 pixels; ``_flt``
+  frames are already trimmed); Roman 4 pixels (4096x4096 ramps), and a
+  level-2 4088x4088 image is the science area with its border stored apart.
 - **DQ bit names**: JWST's (``stdatamodels`` when installed), HST's
-  (:data:`HST_DQ_FLAGS`), Roman's (``roman_datamodels``); a file's own
-  ``DQ_DEF`` table comes first.
+  (:data:`HST_DQ_FLAGS`), Roman's (``roman_datamodels``); a file with its
+  own ``DQ_DEF`` table is read by that table alone (``Mission.dq_def``; see
+  :func:`ipc_taichi.products.plan.dq_bits_of`).
+- **Roman** (:data:`ROMAN`): units from the product's kind (ramps DN, level-2
+  DN/s until its flux step, then MJy/sr: :func:`roman_units`), the time from
+  ``meta.exposure`` (:func:`roman_keywords`; -999999 and other values <= 0
+  mean unset), the gain from a reference file.
 - **Integration time** (rates), in this order: ``--exptime``; ``SAMPTIME`` of
   the science HDU (HST MULTIACCUM reads); ``EFFINTTM`` (JWST); ``EXPTIME``
   (HST, cut-outs); each looked up in the science header, then the primary.
@@ -32,9 +46,10 @@ import numpy as np
 
 from ..errors import IPCInputError
 
-__all__ = ["Mission", "recognise", "roman_mission", "reference_mask", "HST_DQ_FLAGS",
+__all__ = ["Mission", "Border", "recognise", "roman_mission", "reference_border", "HST_DQ_FLAGS",
            "JWST_DQ_FLAGS", "REFERENCE_PIXEL", "check_model_chosen", "check_not_bias",
-           "is_asdf", "TIME_KEYWORDS", "COADD_KEYWORDS", "DEFAULT_DQ"]
+           "is_asdf", "TIME_KEYWORDS", "COADD_KEYWORDS", "DEFAULT_DQ", "ROMAN", "roman_units",
+           "roman_keywords", "jwst_units"]
 
 JWST_DQ_FLAGS = {
     "GOOD": 0, "DO_NOT_USE": 1, "SATURATED": 2, "JUMP_DET": 4, "DROPOUT": 8,
@@ -65,7 +80,23 @@ TIME_KEYWORDS = ("SAMPTIME", "EFFINTTM", "EXPTIME")
 COADD_KEYWORDS = ("NCOADDS", "NDIT")
 BIAS_TYPES = ("SUPERBIAS", "BIAS")
 _JWST_NEAR_IR = ("NIRCAM", "NIRSPEC", "NIRISS", "FGS")
+_JWST_FULL = {"near-IR": (2048, 2048), "MIRI": (1024, 1032)}  # (rows, columns)
+_JWST_BORDER = 4
 _WFC3_IR_FRAMES = (1024, 522, 266, 138, 74)  # _ima: the science area plus 5-pixel borders
+_WFC3_IR_BORDER = 5
+
+ROMAN = {
+    "full_frame": (4096, 4096),
+    "border": 4,
+    "science_area": (4088, 4088),
+    "time_fields": ("effective_exposure_time", "exposure_time"),
+    "time_source": "meta.exposure.effective_exposure_time",
+    "gain_source": "a gain reference file (--gain FILE.asdf)",
+    "units_source": "units (meta.cal_step.flux)",
+}
+"""Roman WFI conventions: a 4096x4096 detector with a 4-pixel reference border;
+a level-2 image is its 4088x4088 science area, the border stored apart (so its
+edge has zero-signal neighbours); where the time and the gain are found."""
 
 
 @dataclass(frozen=True)
@@ -82,18 +113,35 @@ class Mission:
         A product of an instrument (any ``TELESCOP`` or ``INSTRUME``, or
         Roman): the law must be chosen (see :func:`check_model_chosen`).
     dq_flags : dict
-        Flag name -> bit value (the file's ``DQ_DEF`` first).
+        Flag name -> bit value: the mission's names.
+    dq_def : dict
+        Flag name -> bit value of the file's own ``DQ_DEF`` table ({} when it
+        has none); when given, the only names the file's flags are read by.
+    time_keywords : tuple
+        Where the integration time of a rate is looked for, in order.
+    time_source, gain_source, units_source : str
+        Where the time, the gain and the units come from, for messages.
     """
 
     name: str = ""
     instrument: str = ""
     instrument_product: bool = False
     dq_flags: dict = field(default_factory=lambda: dict(JWST_DQ_FLAGS), compare=False)
+    dq_def: dict = field(default_factory=dict, compare=False)
+    time_keywords: tuple = TIME_KEYWORDS
+    time_source: str = "a SAMPTIME, EFFINTTM or EXPTIME keyword"
+    gain_source: str = "a GAIN keyword"
+    units_source: str = "BUNIT"
+
+    def flag(self, name):
+        """The bit of flag ``name`` by the file's ``DQ_DEF`` when it has one,
+        else by the mission's names (0 when undefined)."""
+        return int((self.dq_def or self.dq_flags).get(name, 0))
 
     @property
     def detector_product(self):
         """Whether the file says where it comes from (then the edge rule is
-        chosen from it: see :func:`ipc_taichi.products.conventions.choose_edge`)."""
+        chosen from it: see :func:`ipc_taichi.products.plan.edge_of`)."""
         return bool(self.name or self.instrument)
 
     def describe(self):
@@ -146,13 +194,47 @@ def recognise(primary, science=None, hdul=None):
         name, flags = "Roman", _flag_table("Roman")
     else:
         name, flags = telescope, dict(JWST_DQ_FLAGS)
-    flags.update(dq_def(hdul) if hdul is not None else {})
-    return Mission(name, instrument, bool(name or instrument), flags)
+    own = dq_def(hdul) if hdul is not None else {}
+    return Mission(name, instrument, bool(name or instrument), flags, own)
 
 
 def roman_mission():
     """The Roman conventions, with ``roman_datamodels``' DQ names."""
-    return Mission("Roman", "WFI", True, _flag_table("Roman"))
+    return Mission("Roman", "WFI", True, _flag_table("Roman"),
+                   time_keywords=ROMAN["time_fields"], time_source=ROMAN["time_source"],
+                   gain_source=ROMAN["gain_source"], units_source=ROMAN["units_source"])
+
+
+def roman_units(kind, meta):
+    """The units of a Roman product's ``data``: DN for ramps; DN/s for a
+    level-2 image until its flux step has run (then MJy/sr, refused)."""
+    if kind == "RampModel":
+        return "DN"
+    steps = meta.get("cal_step", {}) if hasattr(meta, "get") else {}
+    flux = steps.get("flux") if hasattr(steps, "get") else None
+    return "MJy/sr" if flux == "COMPLETE" else "DN/s"
+
+
+def roman_keywords(kind, meta):
+    """A keyword look-up for a Roman product: ``BUNIT`` (:func:`roman_units`)
+    and the ``meta.exposure`` times of :data:`ROMAN` (unset, None, when not
+    positive: -999999 is Roman's fill value); anything else None."""
+    exposure = meta.get("exposure", {}) if hasattr(meta, "get") else {}
+
+    def get(key):
+        if key == "BUNIT":
+            return roman_units(kind, meta)
+        if key in ROMAN["time_fields"]:
+            value = exposure.get(key) if hasattr(exposure, "get") else None
+            return float(value) if value is not None and float(value) > 0 else None
+        return None
+    return get
+
+
+def jwst_units(ndim):
+    """The units of a JWST datamodel's ``data`` that carries no ``bunit_data``:
+    a 4-D ramp holds DN, a rate image or cube DN/s."""
+    return "DN" if ndim == 4 else "DN/s"
 
 
 def check_model_chosen(mission, explicit, label):
@@ -165,46 +247,106 @@ def check_model_chosen(mission, explicit, label):
 
 
 def check_not_bias(primary, label):
-    """Refuse a bias or superbias product: bias is not collected charge."""
+    """Refuse a bias or superbias product: bias is not collected charge.
+    ``primary``: its header (or a keyword look-up, ``key -> value``)."""
+    get = primary if callable(primary) else primary.get
     for key in ("REFTYPE", "FILETYPE"):
-        value = str(primary.get(key, "")).strip().upper()
+        value = str(get(key) or "").strip().upper()
         if value in BIAS_TYPES:
             raise IPCInputError(f"{label}: a {value.lower()} ({key} = {value}) holds bias, not "
                                 "collected charge; IPC acts on charge: decouple the products "
                                 "it calibrates")
 
 
-def reference_mask(mission, primary, science, shape2d):
-    """The reference pixels the observatory's conventions place in this frame
-    (bool array), or None."""
+@dataclass(frozen=True)
+class Border:
+    """Reference pixels on each side of a frame, by an observatory's convention
+    (the JWST ``ipc`` step's ``NumRefPixels``); ``stored_apart``: the frame is
+    a science area whose reference border is kept elsewhere (Roman level 2)."""
+
+    bottom: int
+    top: int
+    left: int
+    right: int
+    source: str
+    stored_apart: bool = False
+
+    def mask(self, shape2d):
+        """The reference pixels of a frame of ``shape2d`` (bool array)."""
+        ny, nx = shape2d
+        mask = np.zeros(shape2d, dtype=bool)
+        mask[:min(self.bottom, ny)] = True
+        mask[ny - min(self.top, ny):] = True
+        mask[:, :min(self.left, nx)] = True
+        mask[:, nx - min(self.right, nx):] = True
+        return mask
+
+
+def _origin(own, product, shape2d):
+    """The frame's first pixel on the detector (1-based x, y) and where it
+    was read: the science header's own ``SUBSTRT1/2`` (or a slit cut-out's
+    ``SLTSTRT1/2``), else the primary's when its ``SUBSIZE1/2`` (if any) are
+    this frame's size; None when nothing describes this frame."""
     ny, nx = shape2d
-    get = (lambda k: science.get(k, primary.get(k)))
+    for keys in (("SUBSTRT1", "SUBSTRT2"), ("SLTSTRT1", "SLTSTRT2")):
+        x0, y0 = own(keys[0]), own(keys[1])
+        if x0 is not None and y0 is not None:
+            return int(x0), int(y0), f"{keys[0][:-1]}1/2"
+    x0, y0 = product("SUBSTRT1"), product("SUBSTRT2")
+    size = (product("SUBSIZE1"), product("SUBSIZE2"))
+    if x0 is None or y0 is None:
+        return None
+    if None not in size and (int(size[0]), int(size[1])) != (nx, ny):
+        return None  # the whole exposure's, not this cut-out's
+    return int(x0), int(y0), "SUBSTRT1/2"
+
+
+def reference_border(mission, own, product, shape2d):
+    """The reference pixels the observatory's conventions place in a frame.
+
+    Parameters
+    ----------
+    mission : Mission
+    own, product : callable
+        ``key -> value or None``: the science array's own header, and its
+        product's (primary) header.
+    shape2d : (int, int)
+
+    Returns
+    -------
+    Border or None
+    """
+    ny, nx = shape2d
+    get = (lambda k: own(k) if own(k) is not None else product(k))
     if mission.name == "HST" and mission.instrument == "WFC3" and \
             str(get("DETECTOR") or "").upper() == "IR" and ny == nx and ny in _WFC3_IR_FRAMES:
-        return _border(shape2d, 5, 5, 5, 5)
-    if mission.name == "JWST" and mission.instrument in _JWST_NEAR_IR:
-        full = 2048
-        if str(get("SUBARRAY") or "").upper() == "FULL" and shape2d == (full, full):
-            return _border(shape2d, 4, 4, 4, 4)
-        try:
-            x0, y0 = int(get("SUBSTRT1")), int(get("SUBSTRT2"))  # 1-based detector pixels
-        except (TypeError, ValueError):
+        n = _WFC3_IR_BORDER
+        return Border(n, n, n, n, "WFC3/IR _ima frame")
+    if mission.name == "Roman":
+        n = ROMAN["border"]
+        if tuple(shape2d) == ROMAN["full_frame"]:
+            return Border(n, n, n, n, "Roman full frame")
+        if tuple(shape2d) == ROMAN["science_area"]:
+            return Border(0, 0, 0, 0, "Roman level-2 science area: border stored apart", True)
+        return None
+    if mission.name != "JWST" or mission.instrument not in _JWST_NEAR_IR + ("MIRI",):
+        return None
+    miri = mission.instrument == "MIRI"
+    full_y, full_x = _JWST_FULL["MIRI" if miri else "near-IR"]
+    n = _JWST_BORDER
+    origin = _origin(own, product, shape2d)
+    if origin is None:
+        if tuple(shape2d) != (full_y, full_x):
             return None
-        left, bottom = max(0, 5 - x0), max(0, 5 - y0)
-        right, top = max(0, x0 - 1 + nx - (full - 4)), max(0, y0 - 1 + ny - (full - 4))
-        if left or bottom or right or top:
-            return _border(shape2d, min(left, nx), min(right, nx), min(bottom, ny),
-                           min(top, ny))
-    return None
-
-
-def _border(shape2d, left, right, bottom, top):
-    mask = np.zeros(shape2d, dtype=bool)
-    mask[:bottom] = True
-    mask[shape2d[0] - top:] = True
-    mask[:, :left] = True
-    mask[:, shape2d[1] - right:] = True
-    return mask
+        x0, y0, source = 1, 1, "full frame"
+    else:
+        x0, y0, source = origin
+    x0, y0 = x0 - 1, y0 - 1  # 0-based
+    bottom, top = (0, 0) if miri else (max(0, n - y0), max(0, y0 + ny - (full_y - n)))
+    left, right = max(0, n - x0), max(0, x0 + nx - (full_x - n))
+    if not (bottom or top or left or right):
+        return None
+    return Border(bottom, top, left, right, f"{mission.instrument} {source}")
 
 
 def is_asdf(path):

@@ -65,8 +65,13 @@ class ProductOptions:
         The caller chose the law (``--law``/``--model``, or a model passed to
         the library); False: the paper's law by default, refused on instrument
         products.
-    edge_chosen : bool
-        The caller chose the edge rule; False: chosen from the product.
+    edge : {None, "zero", "isolated"}
+        The edge rule the caller asks for (``--edge``, the Step's ``edge=``);
+        None: none asked. The product's frame decides what it gets
+        (:func:`ipc_taichi.products.plan.edge_of`): ``zero`` beside reference
+        pixels whatever was asked; else the rule asked for; else
+        ``isolated`` for a detector product, the model's rule for a plain
+        image.
     """
 
     hdu: object = None
@@ -88,7 +93,7 @@ class ProductOptions:
     saturation: float = None
     unphysical: str = "mask"
     model_chosen: bool = True
-    edge_chosen: bool = True
+    edge: str = None
 
     @classmethod
     def from_kwargs(cls, options=None, **kwargs):
@@ -107,6 +112,12 @@ class ProductOptions:
             base["dq_bits"] = DEFAULT_DQ
         if base.get("output_dtype") == "same":
             base["output_dtype"] = None
+        if base.get("edge") is not None:
+            from ..model import EDGES
+
+            if base["edge"] not in EDGES:
+                raise IPCInputError(f"edge must be one of {', '.join(EDGES)}, got "
+                                    f"{base['edge']!r}")
         return cls(**base)
 
     def replace(self, **changes):
@@ -116,11 +127,10 @@ class ProductOptions:
 
 def resolve_model(model, options):
     """The coupling model of a run and the options saying whether the caller
-    chose it: with no model, the paper's law, and neither the law nor the
-    edge counts as chosen (an instrument product then refuses it)."""
+    chose it: with no model, the paper's law, not counted as chosen (an
+    instrument product then refuses it)."""
     from ..model import CouplingModel
 
     if model is None:
-        return CouplingModel.resolve(), options.replace(model_chosen=False,
-                                                                    edge_chosen=False)
+        return CouplingModel.resolve(), options.replace(model_chosen=False)
     return CouplingModel.resolve(model=model), options

@@ -13,8 +13,11 @@ One place for the record written into FITS headers and Roman ``meta``:
   was removed: IPC only); HISTORY lines (the model, what was removed, each
   HDU's units, one line per frame);
 - each changed science HDU holds its own: ``IPCOP``, ``IPCHDU``,
-  ``IPCREFPX`` (the science region as a 1-based FITS section
-  ``[x1:x2,y1:y2]``), ``IPCTIME`` (seconds; 0 when not a rate), ``IPCNBAD``
+  ``IPCSCIRG`` (the science region, inside the reference pixels, as a 1-based
+  FITS section ``[x1:x2,y1:y2]``; written as ``IPCREFPX`` before 2026-11, a
+  name that said reference pixels for what is the science region),
+  ``IPCNREF`` (the reference pixels outside it: bottom, top, left, right, as
+  the JWST ``ipc`` step counts them), ``IPCTIME`` (seconds; 0 when not a rate), ``IPCNBAD``
   (this HDU's unphysical pixels masked), and for
   decouple ``IPCITER``, ``IPCCONV``.
 
@@ -83,9 +86,14 @@ class Provenance:
         self.unphysical = {}  # index -> unflagged pixels masked as unphysical
         self.started = _now()
 
-    def add_hdu(self, index, name, label, region, units_text, exptime, frames):
+    def add_hdu(self, index, name, label, region, units_text, exptime, frames, shape=None):
+        """A science array of the run; ``shape`` (its frame's) gives ``IPCNREF``."""
+        nref = "0 0 0 0"
+        if shape is not None:
+            (ys, xs), (ny, nx) = region, shape
+            nref = f"{ys.start} {ny - ys.stop} {xs.start} {nx - xs.stop}"
         self.hdus[index] = dict(name=name, label=label, region=region, units=units_text,
-                                exptime=float(exptime or 0.0), frames=frames)
+                                exptime=float(exptime or 0.0), frames=frames, nref=nref)
         self.infos[index] = [None] * frames
 
     @property
@@ -150,7 +158,8 @@ class Provenance:
         h = self.hdus[index]
         header["IPCOP"] = (self.operation, "IPC operation applied to this HDU")
         header["IPCHDU"] = (f"{index} {h['name']}"[:60], "this HDU: index name")
-        header["IPCREFPX"] = (section(h["region"]), "science region (FITS section, 1-based)")
+        header["IPCSCIRG"] = (section(h["region"]), "science region (FITS section, 1-based)")
+        header["IPCNREF"] = (h["nref"], "reference pixels: bottom top left right")
         header["IPCTIME"] = (h["exptime"], "integration time used, s (0: not a rate)")
         header["IPCNBAD"] = (self.unphysical.get(index, 0), "unflagged unphysical pixels masked")
         if self.operation == "decouple":

@@ -13,7 +13,8 @@ those of :mod:`ipc_taichi.products.conventions`:
   (``meta.exposure.effective_exposure_time``, else ``exposure_time``);
 - ramps (``RampModel``, resultants in DN after bias and reference-pixel
   correction): resultant by resultant, ``pixeldq`` and ``groupdq`` honoured,
-  a 4-pixel reference border in a 4096x4096 frame unless flagged otherwise;
+  a 4-pixel reference border in a 4096x4096 frame unless flagged otherwise
+  (Roman's conventions: :data:`ipc_taichi.products.missions.ROMAN`);
 - raw level-1 resultants (``ScienceRawModel``, uint16 with the bias in them)
   are refused: the law needs collected charge, so subtract the bias first.
 
@@ -33,32 +34,10 @@ from ..fitsio import cannot_write, check_output_path
 from ..interrupts import check_stop
 from . import conventions as cv
 from . import missions
-from .gain import read_gain
 from .options import ProductOptions, resolve_model
-from .provenance import Provenance
+from .plan import ArrayFacts, plan_product
 
 __all__ = ["process_asdf"]
-
-ROMAN_FULL_FRAME = (4096, 4096)
-
-
-def _exposure_time(meta):
-    exposure = meta.get("exposure", {}) if hasattr(meta, "get") else {}
-    for key in ("effective_exposure_time", "exposure_time"):
-        value = exposure.get(key) if hasattr(exposure, "get") else None
-        if value is not None and float(value) > 0:
-            return float(value)
-    return None
-
-
-def _units(dm, ramp):
-    """DN for ramps; DN/s for level 2 until its flux step has run (then MJy/sr)."""
-    if ramp:
-        return "DN"
-    steps = dm.meta.get("cal_step", {}) if hasattr(dm.meta, "get") else {}
-    flux = steps.get("flux") if hasattr(steps, "get") else None
-    return "MJy/sr" if flux == "COMPLETE" else "DN/s"
-
 
 def process_asdf(input_path, output_path, operation="decouple", *, model=None, options=None,
                  **kwargs):
@@ -87,7 +66,7 @@ def process_asdf(input_path, output_path, operation="decouple", *, model=None, o
         raise IPCInputError(f"{output_path}: is the input; write to another file")
     label = f"{input_path}[data]"
     mission = missions.roman_mission()
-    missions.check_model_chosen(mission, options.model_chosen, label)
+    missions.check_model_chosen(mission, options.model_chosen, label)  # before reading
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
@@ -96,84 +75,31 @@ def process_asdf(input_path, output_path, operation="decouple", *, model=None, o
         raise IPCInputError(f"{input_path}: not a readable Roman datamodel "
                             f"({type(exc).__name__})") from None
     with dm:
-        kind = type(dm).__name__
-        if kind == "ScienceRawModel":
-            raise IPCInputError(f"{label}: raw level-1 resultants (uint16) hold the bias; "
-                                "subtract it first (romancal through the refpix step) and "
-                                "decouple that RampModel")
-        if kind not in ("ImageModel", "RampModel"):
-            raise IPCInputError(f"{label}: a {kind}; give a level-2 ImageModel or a RampModel")
-        ramp = kind == "RampModel"
-        names = ("pixeldq", "groupdq") if ramp else ("dq",)
-        try:  # a truncated file fails here, when its blocks are read
-            data = np.asarray(dm.data)
-            flags = [np.asarray(dm[name]) for name in names if name in dm and dm[name] is not None]
-        except Exception as exc:
-            raise IPCInputError(f"{input_path}: its arrays cannot be read, the file may be "
-                                f"truncated ({type(exc).__name__})") from None
-        if data.dtype.kind != "f":
-            raise IPCInputError(f"{label}: integer data ({data.dtype}); subtract the bias first")
-        units = cv.parse_units(options.bunit if options.bunit is not None
-                               else _units(dm, ramp), label,
-                               "--bunit" if options.bunit is not None else
-                               "units (meta.cal_step.flux)")
-        if options.gain is not None and not units.needs_gain:
-            raise IPCInputError(f"{label}: a gain was given but the data are in {units.text}; "
-                                "give --bunit DN or DN/s if they are not")
+        kind, ramp, data, flags = _arrays(dm, input_path, label)
         if "ipc_taichi" in dm.meta and dm.meta["ipc_taichi"].get("operation") == "decouple":
             warnings.warn(f"{label}: IPC was already corrected by ipc_taichi; correcting again",
                           cv.ProductWarning, stacklevel=2)
-        exptime = options.exptime if options.exptime is not None else _exposure_time(dm.meta)
-        scale, units_text = cv.charge_scale(
-            units, read_gain(options.gain, data.shape[-2:]), exptime, label,
-            time_source="meta.exposure.effective_exposure_time",
-            gain_source="a gain reference file (--gain FILE.asdf)",
-            coadds=options.coadds or 1)
-        bits = cv.parse_dq_bits(options.dq_bits, mission.dq_flags) & ~cv.REFERENCE_PIXEL
-        for name, f in zip(names, flags):
-            if f.shape != data.shape[data.ndim - f.ndim:]:
-                raise IPCInputError(f"{input_path}[{name}]: shape {f.shape} does not match "
-                                    f"the data {data.shape}")
-        first = flags[0].reshape((-1,) + data.shape[-2:])[0].astype(np.int64) if flags else None
-        reference = None if first is None else (first & cv.REFERENCE_PIXEL) != 0
-        refpix = options.refpix
-        if refpix is None and (reference is None or not reference.any()):
-            refpix = 4 if ramp and data.shape[-2:] == ROMAN_FULL_FRAME else None
-        try:
-            region, inside = cv.science_region(data.shape[-2:], refpix, reference)
-        except IPCInputError as exc:
-            raise IPCInputError(f"{label}: {exc}") from None
-        full_inside = None
-        if inside is not None:
-            full_inside = np.zeros(data.shape[-2:], dtype=bool)
-            full_inside[region] = inside
-        mask = cv.untrusted(flags, bits, data.shape, full_inside, values=data,
-                            saturation=options.saturation)
         if options.output_dtype not in (None, "same") and \
                 np.dtype(options.output_dtype) != data.dtype:
             raise IPCInputError(f"{label}: a Roman product keeps its schema's dtype "
                                 f"({data.dtype})")
-        inner, edge_reason = cv.choose_edge(model, region, data.shape[-2:], True,
-                                            options.edge_chosen)
-        if data.shape[-2:] == (4088, 4088) and not options.edge_chosen:
-            # a level-2 image is the science area with its 4-pixel reference border
-            # stored apart: beyond its edge lie reference pixels, zero-signal neighbours
-            inner = type(model)(model.law, model.geometry, "zero")
-            edge_reason = "reference border stored apart: zero-signal neighbours"
+        plan = plan_product([_facts(dm, kind, label, data.shape, flags)], mission, model,
+                            options)
+        p, = plan.arrays
+        mask = cv.untrusted(flags, plan.bits, data.shape, p.layout.inside_mask(), values=data,
+                            saturation=options.saturation)
         out = np.empty(data.shape, dtype=data.dtype)
         record = cv.Unphysical(options.unphysical)
-        _, infos = cv.correct_frames(data, operation, inner, mask=mask, region=region,
-                                     scale=scale, out=out, max_iter=max_iter, tol=tol,
+        _, infos = cv.correct_frames(data, operation, p.model, mask=mask, region=p.region,
+                                     scale=p.scale, out=out, max_iter=max_iter, tol=tol,
                                      arch=options.arch, precision=options.precision,
                                      label=label, unphysical=record)
-        dm.data = out
+        dm.data = out  # err and the variances beside it: as they came (the plan's place)
         from .. import runtime
 
         rt = runtime.current()
-        prov = Provenance(operation, inner, edge_reason, bits, "none", options.coadds or 1,
-                          rt.arch if rt else "", rt.precision if rt else "", tol, max_iter)
-        prov.add_hdu(0, "data", label, region, units_text, exptime if units.rate else 0.0,
-                     len(infos))
+        prov = plan.provenance(operation, rt.arch if rt else "", rt.precision if rt else "",
+                               tol, max_iter)
         prov.infos[0] = infos
         prov.unphysical[0] = record.masked
         dm.meta["ipc_taichi"] = prov.record()
@@ -184,8 +110,50 @@ def process_asdf(input_path, output_path, operation="decouple", *, model=None, o
     return {"output": output_path, "label": label, "frames": len(infos), "infos": infos,
             "hdus": [label],
             "iterations": max(i.iterations for i in infos) if operation == "decouple" else 0,
-            "converged": converged, "law": inner.law.name, "edge": inner.edge,
+            "converged": converged, "law": p.model.law.name, "edge": p.model.edge,
             "masked_unphysical": record.masked}
+
+
+def _arrays(dm, input_path, label):
+    """The product's kind, whether a ramp, its ``data`` and
+    the DQ arrays present; raw, unknown and integer products refused."""
+    kind = type(dm).__name__
+    if kind == "ScienceRawModel":
+        raise IPCInputError(f"{label}: raw level-1 resultants (uint16) hold the bias; "
+                            "subtract it first (romancal through the refpix step) and "
+                            "decouple that RampModel")
+    if kind not in ("ImageModel", "RampModel"):
+        raise IPCInputError(f"{label}: a {kind}; give a level-2 ImageModel or a RampModel")
+    ramp = kind == "RampModel"
+    names = ("pixeldq", "groupdq") if ramp else ("dq",)
+    try:  # a truncated file fails here, when its blocks are read
+        data = np.asarray(dm.data)
+        flags = [np.asarray(dm[name]) for name in names if name in dm and dm[name] is not None]
+    except Exception as exc:
+        raise IPCInputError(f"{input_path}: its arrays cannot be read, the file may be "
+                            f"truncated ({type(exc).__name__})") from None
+    if data.dtype.kind != "f":
+        raise IPCInputError(f"{label}: integer data ({data.dtype}); subtract the bias first")
+    for name, f in zip(names, flags):
+        if f.shape != data.shape[data.ndim - f.ndim:]:
+            raise IPCInputError(f"{input_path}[{name}]: shape {f.shape} does not match "
+                                f"the data {data.shape}")
+    return kind, ramp, data, flags
+
+
+def _facts(dm, kind, label, shape, flags):
+    """What a Roman datamodel says about its ``data``
+    (:class:`~ipc_taichi.products.plan.ArrayFacts`): units and times by
+    :func:`~ipc_taichi.products.missions.roman_keywords`, the
+    ``REFERENCE_PIXEL`` flags of its first DQ array's first frame."""
+    def reference():
+        if not flags:
+            return None
+        first = flags[0].reshape((-1,) + shape[-2:])[0].astype(np.int64)
+        return (first & cv.REFERENCE_PIXEL) != 0
+
+    keys = missions.roman_keywords(kind, dm.meta)
+    return ArrayFacts(0, "data", label, shape, keys, keys, reference)
 
 
 def _save(dm, output_path, overwrite):
