@@ -90,8 +90,14 @@ STAGES = ("readout", "collected")
 """Where a noise arises: after the coupling (``readout``) or in the collected
 charge before it (``collected``)."""
 
-TOL = 1e-7
+TOL = 1e-6
 """Default bound on the truncation error of each probed row of ``G``."""
+
+_BAND = 256
+"""Rows of a frame linearised at once (with a halo): bounds the memory."""
+
+_BATCH = 5
+"""Colours solved together (memory: about 3 x this many frames of float64)."""
 
 _NEIGHBOURS = tuple((dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if (dy, dx) != (0, 0))
 
@@ -133,21 +139,53 @@ def jacobian(charge, model, valid):
         sp, sq = x[p], x[q]
         a = law.alpha(sp, sq)
         h = _derivative_step(sp, sq)
-        a1 = (law.alpha(sp + h, sq) - law.alpha(sp - h, sq)) / (2 * h)
-        a2 = (law.alpha(sp, sq + h) - law.alpha(sp, sq - h)) / (2 * h)
+        a1 = _partial(law, sp, sq, h, 0)
+        a2 = _partial(law, sp, sq, h, 1)
         active = ok[p] & ok[q]
         if model.edge == "zero":
             active |= (ok[p] & outside[q]) | (outside[p] & ok[q])
-        # net charge p -> q: w_fwd alpha S_p - w_back alpha S_q (alpha symmetric)
-        d_p = np.where(active, w_fwd * (a + sp * a1) - w_back * sq * a1, 0.0)
-        d_q = np.where(active, w_fwd * sp * a2 - w_back * (a + sq * a2), 0.0)
+        # net charge p -> q: (w_fwd S_p - w_back S_q) alpha(S_p, S_q) (alpha symmetric)
+        net = w_fwd * sp - w_back * sq
+        d_p = np.multiply(net, a1, out=a1)           # d net / d S_p
+        d_p += w_fwd * a
+        d_p *= active
+        d_q = np.multiply(net, a2, out=a2)           # d net / d S_q
+        d_q -= w_back * a
+        d_q *= active
         for key in ((uy, ux), (-uy, -ux)):
             acc.setdefault(key, np.zeros(shape))
         acc[(0, 0)][p] -= d_p
         acc[(0, 0)][q] += d_q
-        acc[(uy, ux)][p] -= np.where(outside[q], 0.0, d_q)
-        acc[(-uy, -ux)][q] += np.where(outside[p], 0.0, d_p)
-    return {o: a[inner] for o, a in acc.items()}
+        acc[(uy, ux)][p] -= d_q
+        acc[(-uy, -ux)][q] += d_p
+    return {o: _inside_only(a[inner], o) for o, a in acc.items()}
+
+
+def _partial(law, s, n, h, which):
+    """Central difference of alpha in its first (``which=0``) or second argument."""
+    if which == 0:
+        out = law.alpha(s + h, n)
+        out -= law.alpha(s - h, n)
+    else:
+        out = law.alpha(s, n + h)
+        out -= law.alpha(s, n - h)
+    out /= 2 * h
+    return out
+
+
+def _inside_only(a, offset):
+    """Zero the entries ``a[p]`` whose column ``p + offset`` lies outside the frame
+    (the zero edge's outside is not a variable)."""
+    oy, ox = offset
+    if oy > 0:
+        a[-oy:] = 0.0
+    elif oy < 0:
+        a[:-oy] = 0.0
+    if ox > 0:
+        a[:, -ox:] = 0.0
+    elif ox < 0:
+        a[:, :-ox] = 0.0
+    return a
 
 
 def _pair_windows(shape, uy, ux):
@@ -414,10 +452,9 @@ def linearise(solution, model=None, *, mask=None, scale=1.0, pedestal=None, edge
     charge = np.where(valid, x * s, 0.0)
     if pedestal is not None:
         charge = charge + np.where(valid, np.asarray(pedestal, dtype=np.float64), 0.0)
-    jac = jacobian(charge, model, valid)
-    stencil, rho, terms, bound = _probe(jac, valid, reach, tol)
+    offsets, stencil, rho, terms, bound = _rows_of_g(charge, model, valid, reach, tol)
     scale_out = float(scale) if np.ndim(scale) == 0 else np.asarray(scale, dtype=np.float64)
-    return Linearisation(stencil[0], stencil[1], valid, scale_out, rho, terms, bound)
+    return Linearisation(offsets, stencil, valid, scale_out, rho, terms, bound)
 
 
 def _model(model, edge):
@@ -432,14 +469,39 @@ def _model(model, edge):
     return m
 
 
-def _probe(jac, valid, reach, tol):
-    """Rows of ``G`` on the colouring's offsets, by truncated Neumann solves."""
+def _rows_of_g(charge, model, valid, reach, tol):
+    """The rows of ``G`` band by band (``_BAND`` rows with a halo the Neumann
+    terms cannot cross, so the bands give the whole frame's answer)."""
+    ny = charge.shape[0]
+    starts = range(0, ny, _BAND) if ny > 2 * _BAND else [0]
+    step = model.geometry.reach
+    guess, parts, stats = 8, [], []
+    for r0 in starts:
+        r1 = ny if len(starts) == 1 else min(r0 + _BAND, ny)
+        while True:
+            halo = 0 if len(starts) == 1 else step * (guess + 1)
+            e0, e1 = max(0, r0 - halo), min(ny, r1 + halo)
+            jac = jacobian(charge[e0:e1], model, valid[e0:e1])
+            scaled, inverse, rho, terms, bound = _contraction(jac, tol)
+            if halo == 0 or terms <= guess:
+                break
+            guess = terms
+        offsets, g = _probe(scaled, inverse, terms, reach, e0)
+        parts.append(g[:, r0 - e0:r1 - e0])
+        stats.append((rho, terms, bound))
+    rho, terms, bound = (max(v) for v in zip(*stats))
+    return offsets, np.concatenate(parts, axis=1), rho, terms, bound
+
+
+def _contraction(jac, tol):
+    """``-D^{-1} N`` as a stencil, ``D^{-1}``, ``rho``, the Neumann terms for ``tol``
+    and their truncation bound."""
     diag = jac[(0, 0)]
     if not np.all(diag > 0):
         raise LawError("the coupling's Jacobian has a non-positive diagonal at this frame: "
                        "the law is too strong to linearise here")
     scaled = {o: a / diag for o, a in jac.items() if o != (0, 0)}
-    rho = float(np.max(sum(np.abs(a) for a in scaled.values()))) if scaled else 0.0
+    rho = float(np.max(sum(np.abs(a) for a in scaled.values())))
     if not rho < 1.0:
         raise LawError(f"the linearised decoupler does not contract at this frame "
                        f"(row sum {rho:.3g} >= 1)")
@@ -447,45 +509,60 @@ def _probe(jac, valid, reach, tol):
     terms = 0
     while rho > 0 and rho ** (terms + 1) / (1.0 - rho) / dmin > tol:
         terms += 1
-    bound = rho ** (terms + 1) / (1.0 - rho) / dmin
-    n, a, offsets = colouring(list(scaled) or [(0, 1)], reach)
-    ny, nx = diag.shape
-    yy, xx = np.mgrid[0:ny, 0:nx]
-    colour = ((xx + a * yy) % n).ravel()
-    first = np.zeros((ny * nx, n))
-    first[np.arange(ny * nx), colour] = 1.0 / diag.ravel()
-    z = _solve(first, _sparse(scaled, (ny, nx)), terms)
-    stencil = np.empty((len(offsets), ny, nx))
-    rows = np.arange(ny * nx)
-    for k, (oy, ox) in enumerate(offsets):
-        stencil[k] = z[rows, (colour + ox + a * oy) % n].reshape(ny, nx)
-    return (offsets, stencil), rho, terms, bound
+    return scaled, 1.0 / diag, rho, terms, rho ** (terms + 1) / (1.0 - rho) / dmin
 
 
-def _sparse(stencil, shape):
-    """The stencil ``{(dy, dx): array}`` as a CSR matrix on the flattened frame
-    (entries that would leave the frame are zero in the stencil)."""
+def _probe(scaled, inverse, terms, reach, row0):
+    """Rows of ``G`` on the colouring's offsets, by truncated Neumann solves
+    (``row0``: the first row's index in the frame, for the colouring)."""
+    n, a, offsets = colouring(list(scaled), reach)
+    ny, nx = inverse.shape
+    colour = ((np.arange(nx)[None, :] + a * np.arange(row0, row0 + ny)[:, None]) % n).ravel()
+    inverse = inverse.ravel()
+    matrix = _sparse(scaled, (ny, nx), -1.0)
+    stencil = np.empty((len(offsets), ny * nx))
+    for start in range(0, n, _BATCH):  # a few colours at a time bounds the memory
+        stop = min(start + _BATCH, n)
+        first = np.zeros((ny * nx, stop - start))
+        here = np.flatnonzero((colour >= start) & (colour < stop))
+        first[here, colour[here] - start] = inverse[here]
+        z = _solve(first, matrix, terms)
+        for k, (oy, ox) in enumerate(offsets):
+            pick = (colour + ox + a * oy) % n - start
+            sel = (pick >= 0) & (pick < stop - start)
+            if sel.all():
+                stencil[k] = np.take_along_axis(z, pick[:, None], axis=1)[:, 0]
+            else:
+                stencil[k][sel] = z[sel, pick[sel]]
+    return offsets, stencil.reshape((len(offsets), ny, nx))
+
+
+def _sparse(stencil, shape, factor=1.0):
+    """``factor`` times the stencil ``{(dy, dx): array}`` as a CSR matrix on the
+    flattened frame (entries that would leave the frame are zero in the stencil)."""
     from scipy import sparse
 
     ny, nx = shape
     size = ny * nx
     keys = list(stencil)
-    rows = np.arange(size)
-    cols = rows[:, None] + np.array([oy * nx + ox for oy, ox in keys])[None, :]
-    data = np.stack([stencil[k].ravel() for k in keys], axis=1)
+    itype = np.int32 if size < 2 ** 31 else np.int64
+    rows = np.arange(size, dtype=itype)[:, None]
+    cols = rows + np.array([oy * nx + ox for oy, ox in keys], dtype=itype)[None, :]
+    data = np.stack([stencil[k].ravel() for k in keys], axis=1) * factor
     off = (cols < 0) | (cols >= size) | (data == 0)
-    cols[off] = rows[:, None].repeat(len(keys), axis=1)[off]
+    cols = np.where(off, rows, cols)  # an explicit zero on the row's own column
     data[off] = 0.0
-    indptr = np.arange(0, size * len(keys) + 1, len(keys))
+    indptr = np.arange(0, size * len(keys) + 1, len(keys), dtype=itype)
     return sparse.csr_array((data.ravel(), cols.ravel(), indptr), shape=(size, size))
 
 
-def _solve(first, matrix, terms):
-    """``z = sum_k (-D^{-1} N)^k D^{-1} b`` for ``k <= terms``, every colour at
-    once (Jacobi from ``D^{-1} b``)."""
+def _solve(first, negated, terms):
+    """``z = sum_k (-D^{-1} N)^k D^{-1} b`` for ``k <= terms``, for several
+    colours at once: Jacobi from ``z = D^{-1} b`` (``negated = -D^{-1} N``)."""
     z = first
     for _ in range(terms):
-        z = first - matrix @ z
+        z = negated @ z
+        z += first
     return z
 
 

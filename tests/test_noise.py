@@ -271,3 +271,16 @@ def test_neighbour_covariance_monte_carlo(cpu):
         assert abs(mc - cov[k][inner].mean()) < 0.01 * 400.0
     right = noise.NEIGHBOUR_OFFSETS.index((0, 1))
     assert -2.6 * 0.0145 < cov[right][inner].mean() / 400.0 < -2.0 * 0.0145
+
+
+def test_bands_give_the_whole_frames_answer(monkeypatch):
+    """Large frames are linearised in bands of rows with a halo (bounded memory)."""
+    rng = np.random.default_rng(11)
+    x = rng.uniform(0.0, 60000.0, (90, 30))
+    x[40, 5] = np.nan
+    mask = np.zeros(x.shape, bool)
+    mask[31:34, 10] = True
+    whole = noise.linearise(x, "donlon2018", mask=mask)
+    monkeypatch.setattr(noise, "_BAND", 16)
+    banded = noise.linearise(x, "donlon2018", mask=mask)
+    assert np.abs(whole.stencil - banded.stencil).max() <= 2 * max(whole.bound, banded.bound)
