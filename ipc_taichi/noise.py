@@ -322,7 +322,7 @@ def _frames(solution, *arrays):
         yield (x,) + tuple(arrays)
         return
     for k in range(x.shape[0]):
-        yield (x[k],) + tuple(None if a is None or np.ndim(a) < 3 else np.asarray(a)[k]
+        yield (x[k],) + tuple(a if a is None or np.ndim(a) < 3 else np.asarray(a)[k]
                               for a in arrays)
 
 

@@ -255,6 +255,10 @@ def test_ramp_monte_carlo(cpu):
     err = np.sqrt(var_poisson + read ** 2 / gain ** 2)
     got = noise.propagate_error(err, x[0], model, var_poisson=var_poisson, measured=y[0],
                                 mask=mask, scale=gain)
+    assert np.array_equal(got[:, 24, 24], err[:, 24, 24])  # the flagged pixel, every group
+    one = noise.propagate_error(err[2], x[0, 2], model, var_poisson=var_poisson[2],
+                                measured=y[0, 2], mask=mask, scale=gain)
+    assert np.array_equal(one, got[2])
     for k in range(groups):
         ratio, zmax = _pooled(x[:, k].var(axis=0, ddof=1), got[k] ** 2, size=60,
                                draws=x.shape[0])
