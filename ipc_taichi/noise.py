@@ -274,7 +274,9 @@ def linearise(solution, model=None, *, mask=None, scale=1.0, pedestal=None, edge
         is not finite and positive are left out, as the products do.
     pedestal : ndarray (ny, nx), optional
         Charge on the node before the first read, electrons: the law is
-        evaluated at ``solution * scale + pedestal``.
+        evaluated at ``solution * scale + pedestal`` (the products decouple
+        ``D(M + P) - D(P)``; using ``P`` for ``D(P)`` here changes ``J`` only
+        through the pedestal's own coupling, a second-order effect).
     edge : {"zero", "isolated"}, optional
         Overrides the model's edge rule (as the products choose it).
     reach : int

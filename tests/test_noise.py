@@ -128,6 +128,18 @@ def test_units_variance_in_data_units_propagated_in_electrons():
     assert np.allclose(rate * scale ** 2, in_e, rtol=1e-12)
 
 
+def test_pedestal_is_charge_on_the_node():
+    """With a pedestal (electrons) the law is evaluated at solution * scale + pedestal."""
+    rng = np.random.default_rng(12)
+    sol = rng.uniform(0.0, 20000.0, (12, 12))          # DN since the pedestal
+    pedestal = rng.uniform(5000.0, 15000.0, sol.shape)  # electrons
+    a = noise.linearise(sol, "donlon2018", scale=2.0, pedestal=pedestal)
+    b = noise.linearise(sol + pedestal / 2.0, "donlon2018", scale=2.0)
+    c = noise.linearise(sol, "donlon2018", scale=2.0)
+    assert np.allclose(a.stencil, b.stencil, rtol=0, atol=1e-12)
+    assert np.abs(a.stencil - c.stencil).max() > 1e-4
+
+
 def test_messages():
     lin = noise.linearise(np.ones((4, 4)), "donlon2018")
     with pytest.raises(IPCInputError) as exc:
