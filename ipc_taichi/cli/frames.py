@@ -27,6 +27,7 @@ import time
 from ..errors import IPCInputError
 from ..products import ProductOptions, couple_file, decouple_file, written_by_ipc_taichi
 from ..products.missions import DEFAULT_DQ
+from .commands import one_line
 from .options import (
     add_iteration_arguments,
     add_model_arguments,
@@ -95,11 +96,8 @@ def add_parsers(sub):
               "couple; reference pixels are never changed. Stacks and ramps are processed "
               "frame by frame. NaN pixels stay NaN. The output is written atomically and "
               "never overwritten without --overwrite. See docs/products.md.")
-    for name, helptext in (
-        ("couple", "apply IPC to a signal product (forward model): IN -> OUT"),
-        ("decouple", "remove IPC from a measured product (iterative Jacobi inversion): "
-                     "IN -> OUT"),
-    ):
+    for name in ("couple", "decouple"):
+        helptext = one_line(name)
         p = sub.add_parser(name, help=helptext, description=f"{helptext}. {common}")
         p.add_argument("paths", nargs="+", metavar="IN.fits",
                        help="IN.fits OUT.fits, IN.fits --output OUT.fits"
