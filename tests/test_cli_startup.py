@@ -223,3 +223,23 @@ def test_a_bar_waits_for_slow_work():
     assert progress.terminal_progress("x", stream=stream) is not None
     assert progress.terminal_progress("x", quiet=True, stream=stream) is None
     assert progress.reporters(True, 4, 20) == (None, None)
+
+
+# --- the benchmark's start-up rows --------------------------------------------------------
+
+
+def test_startup_rows_measure_fresh_processes_and_the_summary_line():
+    from ipc_taichi.bench import render_section
+    from ipc_taichi.bench.startup import TARGETS_S, measure_startup
+
+    section = measure_startup(repeats=1, size=16)
+    help_row, decouple_row = section["rows"]
+    assert help_row["command"] == "ipc-taichi --help"
+    assert decouple_row["command"].startswith("ipc-taichi decouple (16x16, arch ")
+    for row in (help_row, decouple_row):
+        assert 0 < row["min [s]"] <= row["median [s]"] <= row["max [s]"] < 120
+        assert row["met"] == ("yes" if row["median [s]"] < TARGETS_S[row["what"]] else "no")
+    assert section["summary_line_ok"]
+    assert any("1 line on stderr; with --quiet 0" in n for n in section["notes"])
+    text = render_section(section)
+    assert text.startswith("## Start-up") and "| ipc-taichi --help | help |" in text
