@@ -9,4 +9,8 @@ blended pairs), :mod:`analysis.photometry_forward` (IPC-aware forward-model
 fitting), :mod:`analysis.binary` (the binary-star grid study) and
 :mod:`analysis.field_ipc` (IPC as laboratories measure it: flat-field
 autocorrelation and hot pixels). Taichi is only initialised when IPC is applied.
+
+In the repository this package is the folder ``analysis/``; pip installs it as
+``ipc_taichi_analysis`` (a top-level ``analysis`` would clash with users' own). Its
+modules import each other relatively, so they work under either name.
 """

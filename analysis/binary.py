@@ -95,8 +95,8 @@ METHODS = ("plain", "decoupled", "forward", "plain_photutils", "decoupled_photut
 # Initial guesses: offsets from the truth in x, y [px] and flux factors, primary then
 # secondary, as a finder's centroids and aperture fluxes of a resolved pair would be.
 _INIT_DX, _INIT_DY, _INIT_FLUX = (0.1, -0.1), (0.05, -0.05), (1.05, 0.95)
-_SOURCES = ("analysis/binary.py", "analysis/photometry.py", "analysis/photometry_forward.py",
-            "analysis/psf.py", "analysis/simulate.py")
+# files of this package (``analysis/`` in the repository, ``ipc_taichi_analysis`` installed)
+_SOURCES = ("binary.py", "photometry.py", "photometry_forward.py", "psf.py", "simulate.py")
 
 
 @dataclass(frozen=True)
@@ -453,12 +453,13 @@ def _run_task(task):
 # ----------------------------------------------------------------------------- runner
 
 def source_hash(root=None):
-    """Hash of the sources a result depends on (this study, the PSF, ipc_taichi, photutils)."""
+    """Hash of the sources a result depends on (this study, the PSF, ipc_taichi, photutils);
+    ``root``: the folder of this package's files (default: where it is)."""
     import photutils
 
     import ipc_taichi
 
-    root = root or os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    root = root or os.path.dirname(os.path.abspath(__file__))
     paths = [os.path.join(root, p) for p in _SOURCES]
     core = os.path.dirname(os.path.abspath(ipc_taichi.__file__))
     paths += sorted(os.path.join(core, f) for f in os.listdir(core) if f.endswith(".py"))

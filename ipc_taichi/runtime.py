@@ -27,6 +27,13 @@ each, so that they add up to the cores instead of each using all of them.
 
 Asking for a different arch or precision than the running one resets the
 runtime (kernels are recompiled on next use).
+
+Taichi's offline cache is on: compiled kernels are kept in the user's cache
+directory (Taichi's default, ``$XDG_CACHE_HOME/taichi/ticache``, else
+``~/.cache/taichi/ticache``; ``$TI_OFFLINE_CACHE_FILE_PATH`` moves it), never in
+the working directory, so a fresh process skips the LLVM compile of every kernel
+an earlier one built (Taichi still parses the kernels' Python). ``$TI_OFFLINE_CACHE=0``
+turns it off.
 """
 
 import contextlib
@@ -40,11 +47,12 @@ import numpy as np
 from .errors import ArchUnavailableError
 
 __all__ = ["RuntimeInfo", "init", "current", "cpu_threads", "ARCH_ENV", "PRECISION_ENV",
-           "THREADS_ENV"]
+           "THREADS_ENV", "CACHE_ENV"]
 
 ARCH_ENV = "IPC_TAICHI_ARCH"
 PRECISION_ENV = "IPC_TAICHI_PRECISION"
 THREADS_ENV = "IPC_TAICHI_THREADS"
+CACHE_ENV = "TI_OFFLINE_CACHE"  # Taichi's own switch of its offline cache
 _ARCHES = ("auto", "cpu", "cuda")
 _PRECISIONS = ("f64", "f32")
 
@@ -170,6 +178,8 @@ def init(arch=None, precision=None):
     threads = cpu_threads()
     if threads is not None:
         common["cpu_max_num_threads"] = threads
+    if CACHE_ENV not in os.environ:  # said, not left to Taichi's default; the user may say 0
+        common["offline_cache"] = True
     # ti.init prints "Starting on arch=..." unconditionally; keep stdout clean
     # for command-line output (the arch is reported by RuntimeInfo instead)
     with contextlib.redirect_stdout(io.StringIO()):

@@ -25,7 +25,8 @@ Modules: :mod:`~ipc_taichi.bench.cpu` (the CPU rows and the floor),
 :mod:`~ipc_taichi.bench.cuda` (the CUDA rows), :mod:`~ipc_taichi.bench.peers`
 (NumPy and CuPy peers), :mod:`~ipc_taichi.bench.pipeline` (beside the JWST
 step), :mod:`~ipc_taichi.bench.render` (the report, a pure function of the
-results), :mod:`~ipc_taichi.bench.launch` (subprocesses, the whole run).
+results), :mod:`~ipc_taichi.bench.launch` (subprocesses, the whole run),
+:mod:`~ipc_taichi.bench.startup` (``--help`` and a small decouple in fresh processes).
 """
 
 from .cpu import KINDS, SIZES, measure_floor, measure_row
@@ -35,9 +36,10 @@ from .peers import CupyPeer
 from .pipeline import measure_pipeline_ipc
 from .ramp import RAMP_GROUPS, RAMP_SIZE, measure_ramp
 from .render import floor_model, render_cuda, render_markdown, render_pipeline, render_section
+from .startup import measure_startup
 
 __all__ = ["run_benchmark", "write_results", "machine", "in_subprocess", "cuda_present",
            "measure_row", "measure_floor", "measure_cuda", "measure_pipeline_ipc", "CupyPeer",
            "render_markdown", "render_cuda", "render_pipeline", "render_section", "floor_model",
            "SIZES", "KINDS", "CUDA_SIZE", "STACK_FRAMES", "measure_ramp", "RAMP_SIZE",
-           "RAMP_GROUPS"]
+           "RAMP_GROUPS", "measure_startup"]

@@ -19,6 +19,7 @@ from .cuda import CUDA_SIZE, STACK_FRAMES, measure_cuda
 from .pipeline import PIPELINE_SIZE, measure_pipeline_ipc
 from .ramp import RAMP_GROUPS, RAMP_SIZE, measure_ramp
 from .render import floor_model, render_markdown
+from .startup import measure_startup
 
 __all__ = ["run_benchmark", "write_results", "machine", "in_subprocess", "work", "cuda_present",
            "calibrate_section"]
@@ -232,8 +233,16 @@ def run_benchmark(sizes=SIZES, kinds=KINDS, repeats=5, configs=None, progress=pr
         calibrate, failed = in_subprocess({"config": "calibrate", "size": 2048, "groups": 10})
         if failed:
             notes.append(f"The calibrate row failed: {failed}")
+    startup = None
+    if measure:
+        progress("  start-up: ipc-taichi --help and a 64x64 decouple, fresh processes")
+        try:
+            startup = measure_startup(repeats)
+        except RuntimeError as exc:
+            notes.append(f"The start-up row failed: {exc}")
     return {"machine": info, "repeats": repeats, "notes": notes, "rows": rows, "floor": floor,
-            "pipeline": pipeline, "ramp": ramp, "calibrate": calibrate, "cuda": cuda}
+            "pipeline": pipeline, "ramp": ramp, "calibrate": calibrate, "cuda": cuda,
+            "startup": startup}
 
 
 def _add_ratios(rows):

@@ -1,22 +1,25 @@
 """The ``ipc-taichi`` command line.
 
-Every subcommand is a module of this package (plain imports: the command tree
-is what this file imports); the options they share are defined once in
-:mod:`ipc_taichi.cli.options`. The work is done by the library (the product
-pipeline :mod:`ipc_taichi.products`, :mod:`ipc_taichi.demo`,
-:mod:`ipc_taichi.bench`, :mod:`ipc_taichi.discover`); no library module
-imports this package. This module dispatches and turns errors into one-line
-messages and exit codes:
+Every subcommand is a module of this package; the options they share are
+defined once in :mod:`ipc_taichi.cli.options`, and the table of commands (each
+one's module and one-line help) is :data:`ipc_taichi.cli.commands.COMMANDS`. A
+command's module, and the libraries it needs, are imported only when that
+command runs: ``ipc-taichi --help`` imports none of them and answers at once.
+The work is done by the library (the product pipeline
+:mod:`ipc_taichi.products`, :mod:`ipc_taichi.demo`, :mod:`ipc_taichi.bench`,
+:mod:`ipc_taichi.discover`); no library module imports this package. This module
+dispatches and turns errors into one-line messages and exit codes:
 
 - 0: done;
 - 1: the computation failed (e.g. divergence), or some inputs failed;
 - 2: bad input or usage (file, HDU, units, law, argument);
 - 3: written, but the stopping rule was not met (the output says ``IPCCONV = F``);
 - 130 / 143: interrupted by SIGINT / SIGTERM (temporary files removed, nothing
-  written at the output path).
+  written at the output path), at any moment, also while the libraries load.
 """
 
 import argparse
+import importlib
 import logging
 import signal
 import sys
@@ -24,9 +27,8 @@ import warnings
 
 from .. import __version__
 from ..errors import ConvergenceWarning, DivergenceError
-from ..interrupts import clear_stop, request_stop
-from ..products.conventions import ProductWarning
-from . import bench, calibrate, demo, discover, frames
+from ..interrupts import check_stop, clear_stop, request_stop
+from .commands import COMMANDS
 
 __all__ = ["main", "build_parser", "Terminated"]
 
@@ -38,8 +40,16 @@ class Terminated(KeyboardInterrupt):
     every ``with`` block on the way out removes its temporary files."""
 
 
-def build_parser():
-    """The ``ipc-taichi`` parser with every subcommand."""
+def build_parser(commands=None):
+    """The ``ipc-taichi`` parser.
+
+    Parameters
+    ----------
+    commands : iterable of str, optional
+        The subcommands whose options are built (default: every one). The
+        others are listed with their one-line help only, so that their modules
+        are not imported.
+    """
     parser = argparse.ArgumentParser(
         prog="ipc-taichi",
         description="Simulate and remove signal-dependent interpixel capacitance (IPC) in "
@@ -50,12 +60,23 @@ def build_parser():
                "3 written but not converged, 130/143 interrupted.")
     parser.add_argument("--version", action="version", version=f"ipc_taichi {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    frames.add_parsers(sub)
-    demo.add_parser(sub)
-    bench.add_parser(sub)
-    discover.add_parsers(sub)
-    calibrate.add_parser(sub)
+    wanted = set(COMMANDS if commands is None else commands)
+    for module_name in dict.fromkeys(module for module, _ in COMMANDS.values()):
+        names = [name for name, (module, _) in COMMANDS.items() if module == module_name]
+        if wanted.intersection(names):
+            module = importlib.import_module(f".{module_name}", __name__)
+            (getattr(module, "add_parsers", None) or module.add_parser)(sub)
+        else:
+            for name in names:
+                sub.add_parser(name, help=COMMANDS[name][1])
     return parser
+
+
+def _command(argv):
+    """The subcommand ``argv`` names (its first word that is not an option), as a
+    tuple of none or one."""
+    words = [word for word in argv if not word.startswith("-")]
+    return tuple(words[:1])
 
 
 def _terminate(signum, frame):
@@ -65,29 +86,41 @@ def _terminate(signum, frame):
 
 
 def _show_warning(message, category, filename, lineno, file=None, line=None):
+    from ..products.conventions import ProductWarning
+
     kind = "warning" if issubclass(category, (ConvergenceWarning, ProductWarning)) else \
         category.__name__
     print(f"ipc-taichi: {kind}: {message}", file=sys.stderr)
 
 
 def main(argv=None):
-    """Run ``ipc-taichi`` with ``argv`` (default ``sys.argv[1:]``); return the exit code."""
-    args = build_parser().parse_args(argv)
-    quiet = getattr(args, "quiet", False)
-    # the runtime's CUDA notice is a logged warning; --quiet keeps only errors
-    logging.basicConfig(format="ipc-taichi: %(message)s",
-                        level=logging.ERROR if quiet else logging.WARNING)
-    from astropy.utils.exceptions import AstropyWarning
+    """Run ``ipc-taichi`` with ``argv`` (default ``sys.argv[1:]``); return the exit code.
 
+    SIGINT and SIGTERM are handled from the first line on: a Ctrl-C while the
+    libraries are still loading ends the run with one line and code 130, as
+    one during the work does.
+    """
     clear_stop()
     previous = {sig: signal.signal(sig, _terminate) for sig in (signal.SIGTERM, signal.SIGINT)}
     try:
+        argv = sys.argv[1:] if argv is None else list(argv)
+        args = build_parser(_command(argv)).parse_args(argv)
+        quiet = getattr(args, "quiet", False)
+        # the runtime's CUDA notice is a logged warning; --quiet keeps only errors
+        logging.basicConfig(format="ipc-taichi: %(message)s",
+                            level=logging.ERROR if quiet else logging.WARNING)
+        from astropy.utils.exceptions import AstropyWarning
+
+        from ..products.conventions import ProductWarning
+
         with warnings.catch_warnings():  # restored on return (main may run in-process)
             warnings.showwarning = _show_warning
             warnings.filterwarnings("once", category=AstropyWarning)  # a bad card: once
             for category in (ConvergenceWarning, ProductWarning):  # said to the user, always
                 warnings.filterwarnings("always", category=category)
-            return int(args.run(args) or 0)
+            code = int(args.run(args) or 0)
+        check_stop()  # a signal a library swallowed still ends the run as interrupted
+        return code
     except DivergenceError as exc:
         print(f"ipc-taichi: error: {exc}", file=sys.stderr)
         return EXIT_FAILED

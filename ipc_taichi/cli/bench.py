@@ -5,13 +5,14 @@ import os
 from ..bench import CUDA_SIZE, KINDS, SIZES, STACK_FRAMES, run_benchmark, write_results
 from ..bench.pipeline import PIPELINE_SIZE
 from ..errors import IPCInputError
+from .commands import one_line
 
 __all__ = ["add_parser", "run"]
 
 
 def add_parser(sub):
     p = sub.add_parser(
-        "bench", help="time decoupling: NumPy vs Taichi CPU f64/f32 (and CUDA when present)",
+        "bench", help=one_line("bench"),
         description="Decouple the same frames with plain NumPy and with Taichi (CPU f64, f32; "
                     "CUDA f64, f32 when a GPU is present), each configuration in a fresh "
                     "process; print a table and write bench/results.json and bench/RESULTS.md.")

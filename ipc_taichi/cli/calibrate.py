@@ -2,6 +2,7 @@
 
 import sys
 
+from .commands import one_line
 from .options import add_quiet_argument
 
 __all__ = ["add_parser", "run_calibrate"]
@@ -9,7 +10,7 @@ __all__ = ["add_parser", "run_calibrate"]
 
 def add_parser(sub):
     p = sub.add_parser(
-        "calibrate", help="measure this detector's coupling: darks/flats/reference -> MODEL.json",
+        "calibrate", help=one_line("calibrate"),
         description="Measure alpha(S,0) per direction from isolated hot pixels in darks and "
                     "ramps (followed group by group); from flat ramps separate the gain, "
                     "classical non-linearity, brighter-fatter and IPC (alpha(S,S) with "

@@ -7,6 +7,7 @@ import sys
 
 from ..errors import IPCInputError
 from ..fitsio import check_output_path
+from .commands import one_line
 from .options import add_quiet_argument, add_runtime_arguments
 
 __all__ = ["add_parsers", "run_discover", "run_simulate_lab"]
@@ -16,7 +17,7 @@ def add_parsers(sub):
     from ..discover.effects import EFFECT_NAMES
 
     p = sub.add_parser(
-        "discover", help="find which detector effect the model misses: DATA.fits -> report",
+        "discover", help=one_line("discover"),
         description="Compare MEASURED frames with the model's prediction of their SCENE "
                     "(format: docs/discover.md), name the missing effects one by one (delta "
                     "BIC), refit, and report the gap from baseline to the noise floor.")
@@ -37,7 +38,7 @@ def add_parsers(sub):
     p.set_defaults(run=run_discover)
 
     s = sub.add_parser(
-        "simulate-lab", help="write a lab file (SCENE/MEASURED pairs) with hidden effects",
+        "simulate-lab", help=one_line("simulate-lab"),
         description="Draw scenes (background, flat patches, hot pixels, point sources), pass "
                     "them through the detector model with the given hidden effects and write "
                     "the discover format. Effects: " + ", ".join(EFFECT_NAMES) + ".")

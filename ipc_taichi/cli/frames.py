@@ -19,6 +19,7 @@ two inputs cannot replace the second input by the decoupled first. To replace
 any other file, name it as the output explicitly: ``--output OUT --overwrite``.
 """
 
+import contextlib
 import glob
 import os
 import sys
@@ -27,6 +28,8 @@ import time
 from ..errors import IPCInputError
 from ..products import ProductOptions, couple_file, decouple_file, written_by_ipc_taichi
 from ..products.missions import DEFAULT_DQ
+from ..progress import terminal_progress
+from .commands import one_line
 from .options import (
     add_iteration_arguments,
     add_model_arguments,
@@ -95,11 +98,8 @@ def add_parsers(sub):
               "couple; reference pixels are never changed. Stacks and ramps are processed "
               "frame by frame. NaN pixels stay NaN. The output is written atomically and "
               "never overwritten without --overwrite. See docs/products.md.")
-    for name, helptext in (
-        ("couple", "apply IPC to a signal product (forward model): IN -> OUT"),
-        ("decouple", "remove IPC from a measured product (iterative Jacobi inversion): "
-                     "IN -> OUT"),
-    ):
+    for name in ("couple", "decouple"):
+        helptext = one_line(name)
         p = sub.add_parser(name, help=helptext, description=f"{helptext}. {common}")
         p.add_argument("paths", nargs="+", metavar="IN.fits",
                        help="IN.fits OUT.fits, IN.fits --output OUT.fits"
@@ -211,10 +211,18 @@ def _say(summary, src, dst, operation, args, write=None):
     (write or (lambda text: print(text, file=sys.stderr, flush=True)))(line)
 
 
+def _progress(args, operation):
+    """The bar of one product's frames or iterations on a terminal (a context
+    giving None off a terminal or with --quiet)."""
+    return terminal_progress(operation, args.quiet) or contextlib.nullcontext()
+
+
 def run_couple(args):
     model = model_from_args(args)
     src, dst = _single_pair(args, "couple")
-    summary = couple_file(src, dst, model=model, options=_product_options(args))
+    with _progress(args, "couple") as bar:
+        summary = couple_file(src, dst, model=model,
+                              options=_product_options(args).replace(progress=bar))
     _say(summary, src, dst, "couple", args)
     return 0
 
@@ -241,8 +249,9 @@ def run_decouple(args):
         raise IPCInputError(f"--tile {args.tile}: needs N >= 1")
     if args.output_dir is None:
         src, dst = _single_pair(args, "decouple")
-        summary = decouple_file(src, dst, model=model,
-                                options=_product_options(args).replace(progress=not args.quiet))
+        with _progress(args, "decouple") as bar:
+            summary = decouple_file(src, dst, model=model,
+                                    options=_product_options(args).replace(progress=bar))
         _say(summary, src, dst, "decouple", args)
         return _report(summary, src)
     if args.output is not None:

@@ -46,6 +46,7 @@ import numpy as np
 from .. import iteration
 from ..errors import ConvergenceWarning, DivergenceError, IPCInputError
 from ..interrupts import check_stop
+from ..progress import reporters
 from .missions import DEFAULT_DQ, JWST_DQ_FLAGS, REFERENCE_PIXEL
 
 __all__ = ["ProductWarning", "parse_dq_bits", "untrusted", "unusable_gain", "science_region",
@@ -395,7 +396,8 @@ class named:
 
 def correct_frames(data, operation, model, *, mask=None, region=None, scale=1.0,
                    out=None, max_iter=iteration.MAX_ITER, tol=iteration.TOL, arch=None,
-                   precision=None, label="data", pedestal=None, unphysical="mask"):
+                   precision=None, label="data", pedestal=None, unphysical="mask",
+                   progress=None):
     """Couple or decouple every 2-D frame of ``data`` by the product rules.
 
     The pure correction function under every product reader/writer.
@@ -433,6 +435,9 @@ def correct_frames(data, operation, model, *, mask=None, region=None, scale=1.0,
         What is done with unflagged pixels no detector can hold (see
         :class:`Unphysical`; pass one to read the count afterwards). Said in
         one warning line for the whole array.
+    progress : callable, optional
+        Told of each frame done, or of each iteration of a lone frame (see
+        :func:`ipc_taichi.progress.reporters`).
 
     Returns
     -------
@@ -453,8 +458,9 @@ def correct_frames(data, operation, model, *, mask=None, region=None, scale=1.0,
     s = np.asarray(scale, dtype=np.float64)
     s_in = s[region] if s.ndim == 2 else s
     base = None if pedestal is None else np.asarray(pedestal, dtype=np.float64)[region]
+    after_frame, after_iteration = reporters(progress, frames.shape[0], max_iter)
     settings = dict(operation=operation, model=model, max_iter=max_iter, tol=tol, arch=arch,
-                    precision=precision)
+                    precision=precision, callback=after_iteration)
     record = unphysical if isinstance(unphysical, Unphysical) else Unphysical(unphysical)
     offset = (region[0].start or 0, region[1].start or 0)
     cached = {}
@@ -486,11 +492,13 @@ def correct_frames(data, operation, model, *, mask=None, region=None, scale=1.0,
         target = flat_out[k][region]
         target[...] = result if m is None else np.where(m, frames[k][region], result)
         infos.append(info)
+        if after_frame is not None:
+            after_frame(k + 1)
     record.warn(label)
     return out, infos
 
 
-def _run(charge, mask, where, operation, model, max_iter, tol, arch, precision):
+def _run(charge, mask, where, operation, model, max_iter, tol, arch, precision, callback):
     """One frame in electrons through the decoupler or the forward model."""
     from ..coupling import couple
     from ..decoupling import decouple
@@ -499,7 +507,8 @@ def _run(charge, mask, where, operation, model, max_iter, tol, arch, precision):
         warnings.simplefilter("ignore", ConvergenceWarning)  # reported per frame by callers
         if operation == "decouple":
             result, info = decouple(charge, model=model, mask=mask, max_iter=max_iter,
-                                    tol=tol, arch=arch, precision=precision, full_output=True)
+                                    tol=tol, arch=arch, precision=precision, full_output=True,
+                                    callback=callback)
         else:
             result, info = couple(charge, model=model, mask=mask, arch=arch,
                                   precision=precision), None

@@ -32,8 +32,10 @@ class ProductOptions:
         As for :func:`ipc_taichi.decouple`.
     tile : int, optional
         Decouple tile by tile through memory maps (FITS, decouple only).
-    progress : bool
-        A progress bar on a terminal (tiled runs).
+    progress : bool or callable
+        A progress bar on a terminal: True, a bar of tiles (tiled runs); a
+        reporter (:class:`ipc_taichi.progress.TerminalProgress`), that bar and
+        each frame of a stack or iteration of a lone frame.
     dq_bits : str or int
         Flags of pixels left out (names of the product's mission, its
         ``DQ_DEF`` first, or integers; default ``DO_NOT_USE,SATURATED``).

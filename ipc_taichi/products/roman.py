@@ -44,8 +44,8 @@ def process_asdf(input_path, output_path, operation="decouple", *, model=None, o
     """Couple or decouple the science array of a Roman ASDF product.
 
     Parameters are those of :func:`ipc_taichi.products.process_fits`
-    (``hdu`` and ``tile`` do not apply and are refused; ``progress`` is
-    ignored). Returns the same summary dict.
+    (``hdu`` and ``tile`` do not apply and are refused). Returns the same
+    summary dict.
     """
     options = ProductOptions.from_kwargs(options, **kwargs)
     try:
@@ -93,7 +93,8 @@ def process_asdf(input_path, output_path, operation="decouple", *, model=None, o
         _, infos = cv.correct_frames(data, operation, p.model, mask=mask, region=p.region,
                                      scale=p.scale, out=out, max_iter=max_iter, tol=tol,
                                      arch=options.arch, precision=options.precision,
-                                     label=label, unphysical=record)
+                                     label=label, unphysical=record,
+                                     progress=options.progress)
         dm.data = out  # err and the variances beside it: as they came (the plan's place)
         from .. import runtime
 

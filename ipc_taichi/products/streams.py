@@ -64,7 +64,8 @@ def whole(path, hdul, index, out, flags, region, scale, model, options, label, p
         data, operation, model, mask=flags.whole(region, data), region=region, scale=scale,
         out=out, max_iter=options.max_iter, tol=options.tol, arch=options.arch,
         precision=options.precision, label=label, pedestal=pedestal,
-        unphysical=record if record is not None else options.unphysical)
+        unphysical=record if record is not None else options.unphysical,
+        progress=options.progress)
     return infos
 
 
