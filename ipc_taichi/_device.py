@@ -31,6 +31,7 @@ import weakref
 import numpy as np
 
 from .errors import IPCInputError
+from .gpus import CUDA_DRIVER
 
 __all__ = ["kind_of", "to_torch", "from_torch", "torch_dtype", "check_torch_device",
            "ndarray_pointer", "CudaDriver", "cuda_driver", "pinned_for_call", "pinned_empty",
@@ -235,7 +236,7 @@ class CudaDriver:
     """
 
     def __init__(self, lib=None):
-        self.lib = lib if lib is not None else ctypes.CDLL("libcuda.so.1")
+        self.lib = lib if lib is not None else ctypes.CDLL(CUDA_DRIVER)
         self._ctx = None
 
     def _check(self, code, what):

@@ -14,6 +14,7 @@ import numpy as np
 
 from ..calibrate.benchmark import measure_calibrate
 from ..datasets import star_field, uniform_frame
+from ..gpus import cuda_present
 from .cpu import KINDS, NUMPY_REPEAT_CAP, REFERENCE_MAX_SIZE, SIZES, measure_floor, measure_row
 from .cuda import CUDA_SIZE, STACK_FRAMES, measure_cuda
 from .pipeline import PIPELINE_SIZE, measure_pipeline_ipc
@@ -112,16 +113,6 @@ def machine():
         "load_average_at_start": [round(v, 2) for v in load],
         "cuda": cuda_present(),
     }
-
-
-def cuda_present():
-    try:
-        import ctypes
-
-        ctypes.CDLL("libcuda.so.1")
-        return True
-    except OSError:
-        return False
 
 
 def _configs(cuda):
