@@ -26,6 +26,7 @@ from ipc_taichi.engine import (
     get_step_kernel,
 )
 from ipc_taichi.reference import couple_reference, decouple_reference
+from tests.helpers import same
 
 
 @pytest.fixture
@@ -47,20 +48,16 @@ def device_path():
         engine.clear_workspaces()
 
 
-def _same(a, b):
-    return np.array_equal(np.asarray(a), np.asarray(b), equal_nan=True)
-
-
 def test_torch_tensors_round_trip_bit_identical(cpu, frames, torch):
     truth, mask = frames
     measured = ipc_taichi.couple(truth, mask=mask)
     measured_t = ipc_taichi.couple(torch.from_numpy(truth), mask=mask)
     assert isinstance(measured_t, torch.Tensor) and measured_t.dtype == torch.float64
-    assert measured_t.shape == truth.shape and _same(measured_t, measured)
+    assert measured_t.shape == truth.shape and same(measured_t, measured)
     signal, infos = ipc_taichi.decouple(measured, mask=mask, full_output=True)
     signal_t, infos_t = ipc_taichi.decouple(torch.from_numpy(measured),
                                             mask=torch.from_numpy(mask), full_output=True)
-    assert isinstance(signal_t, torch.Tensor) and _same(signal_t, signal)
+    assert isinstance(signal_t, torch.Tensor) and same(signal_t, signal)
     assert [i.max_delta for i in infos_t] == [i.max_delta for i in infos]
     assert np.isnan(signal_t[1, 5, 6].item())
     assert signal_t[0, 20, 11].item() == measured[0, 20, 11]  # masked: kept as given
@@ -73,11 +70,11 @@ def test_torch_frame_f32_and_integer_input(cpu, rng, torch):
     measured = couple_reference(truth)
     one = ipc_taichi.decouple(torch.from_numpy(measured).float())
     assert one.shape == (30, 20) and one.dtype == torch.float64  # the runtime precision
-    assert _same(one, ipc_taichi.decouple(measured.astype(np.float32)))
+    assert same(one, ipc_taichi.decouple(measured.astype(np.float32)))
     ints = torch.from_numpy(np.rint(truth).astype(np.int32))
-    assert _same(ipc_taichi.couple(ints), ipc_taichi.couple(np.rint(truth)))
+    assert same(ipc_taichi.couple(ints), ipc_taichi.couple(np.rint(truth)))
     graded = torch.from_numpy(measured).requires_grad_()
-    assert _same(ipc_taichi.decouple(graded), ipc_taichi.decouple(measured))
+    assert same(ipc_taichi.decouple(graded), ipc_taichi.decouple(measured))
 
 
 def test_device_path_on_cpu_bit_identical(cpu, frames, device_path, monkeypatch):
@@ -100,17 +97,17 @@ def test_device_path_on_cpu_bit_identical(cpu, frames, device_path, monkeypatch)
     monkeypatch.setattr(engine.HostCopies, "upload", count_up)
     monkeypatch.setattr(engine.HostCopies, "download", count_down)
     got_c = ipc_taichi.couple(truth, mask=mask)
-    assert _same(got_c, want_c)
+    assert same(got_c, want_c)
     assert calls == {"up": 6, "down": 3}  # per frame: frame + mask up, result down
     calls.update(up=0, down=0)
     got_d, got_info = ipc_taichi.decouple(host_measured, full_output=True, mask=mask)
-    assert _same(got_d, want_d) and calls == {"up": 6, "down": 3}
+    assert same(got_d, want_d) and calls == {"up": 6, "down": 3}
     assert [i.max_delta for i in got_info] == [i.max_delta for i in want_info]
     # a strided f32 view is converted once into the workspace's staging frame
     view = host_measured.astype(np.float32)[:, ::-1, :]
     with engine.device_buffers(False):
         want_v = ipc_taichi.decouple(view)
-    assert _same(ipc_taichi.decouple(view), want_v)
+    assert same(ipc_taichi.decouple(view), want_v)
 
 
 def test_callback_sees_the_same_estimates_on_device_path(cpu, rng, device_path):
@@ -186,13 +183,13 @@ def test_out_argument(cpu, rng, torch):
     measured = np.stack([couple_reference(f) for f in rng.uniform(0, 60000, (2, 20, 24))])
     out = np.empty_like(measured)
     got = ipc_taichi.decouple(measured, out=out)
-    assert got is out and _same(out, ipc_taichi.decouple(measured))
+    assert got is out and same(out, ipc_taichi.decouple(measured))
     with pytest.raises(IPCInputError, match="out: expected"):
         ipc_taichi.decouple(measured, out=np.empty((2, 20, 23)))
     tout = torch.empty(20, 24, dtype=torch.float64)
     got_t = ipc_taichi.couple(torch.from_numpy(measured[0]), out=tout)
     assert got_t.data_ptr() == tout.data_ptr()
-    assert _same(tout, ipc_taichi.couple(measured[0]))
+    assert same(tout, ipc_taichi.couple(measured[0]))
 
 
 def test_tensor_on_another_device_is_refused(cpu, torch):
@@ -233,11 +230,11 @@ def test_dlpack_arrays_go_through_torch_and_come_back(cpu, frames, fake_cupy, to
     truth, mask = frames
     want = ipc_taichi.couple(truth, mask=mask)
     got = ipc_taichi.couple(fake_cupy(truth), mask=mask)
-    assert type(got) is fake_cupy and _same(got._array, want)
+    assert type(got) is fake_cupy and same(got._array, want)
     assert engine.kind_of(fake_cupy(truth)) == "cupy"
     # an unknown DLPack producer gets a torch tensor back (its module has no from_dlpack)
     generic = ipc_taichi.couple(_Producer(truth[0]), mask=mask)
-    assert isinstance(generic, torch.Tensor) and _same(generic, want[0])
+    assert isinstance(generic, torch.Tensor) and same(generic, want[0])
 
 
 def test_dlpack_without_torch_says_what_to_install(cpu, frames, fake_cupy, monkeypatch):
@@ -406,7 +403,7 @@ def test_torch_tensors_on_the_device_path(cpu, frames, device_path, monkeypatch,
                         lambda self, nd, host: (copies.append(host.shape) if host.size > 4
                                                 else upload(self, nd, host)))
     got = ipc_taichi.decouple(torch.from_numpy(truth), mask=torch.from_numpy(mask))
-    assert isinstance(got, torch.Tensor) and _same(got, want) and copies == []
+    assert isinstance(got, torch.Tensor) and same(got, want) and copies == []
     ws = engine.cached_workspaces()[-1]  # the one used last
     assert ws.device_buffers and not isinstance(ws.prev, np.ndarray)
 
@@ -432,12 +429,12 @@ def test_host_load_matches_the_load_kernel(cpu, frames, device_path):
     for host, device in zip(results[False], results[True]):
         (want, want_info), *want_rest = host
         (got, info), *got_rest = device
-        assert _same(got, want) and [i.max_delta for i in info] == [
+        assert same(got, want) and [i.max_delta for i in info] == [
             i.max_delta for i in want_info]
-        assert all(_same(a, b) for a, b in zip(got_rest, want_rest))
+        assert all(same(a, b) for a, b in zip(got_rest, want_rest))
     (first, _), stack_isolated, _, alone = results[False][0]
     assert np.isnan(first[0, 5, 6]) and first[0, 20, 11] == measured[0, 20, 11]
-    assert _same(stack_isolated[1], alone)  # frame 1 after a frame with bad pixels
+    assert same(stack_isolated[1], alone)  # frame 1 after a frame with bad pixels
     assert np.array_equal(alone, couple_reference(measured[1], edge="isolated")) or \
         np.abs(alone - couple_reference(measured[1], edge="isolated")).max() <= 1e-10 * 6e4
 

@@ -10,10 +10,7 @@ import pytest
 
 import ipc_taichi
 from ipc_taichi import engine
-
-
-def _same(a, b):
-    return np.array_equal(np.asarray(a), np.asarray(b), equal_nan=True)
+from tests.helpers import same
 
 
 @pytest.fixture
@@ -69,7 +66,7 @@ def test_threads_are_served_one_at_a_time(cpu, rng):
         t.join()
     assert errors == []
     for i in range(2):
-        assert len(results[i]) == 4 and all(_same(r, serial[i]) for r in results[i])
+        assert len(results[i]) == 4 and all(same(r, serial[i]) for r in results[i])
 
     entered = []
 
@@ -167,13 +164,13 @@ def test_out_given_as_the_input_keeps_bad_pixels(cpu, bad_frames, kind, function
     data = truth.copy() if kind != "torch" else torch.from_numpy(truth.copy())
     got = run(data, mask=mask, out=data)
     assert got is data or np.shares_memory(np.asarray(got), np.asarray(data))
-    assert _same(got, expected)
+    assert same(got, expected)
     assert np.isnan(np.asarray(got)[0, 9, 2]) and np.isnan(np.asarray(got)[1, 4, 7])
     assert np.asarray(got)[0, 11, 12] == truth[0, 11, 12]  # masked: its input value
     # a view of the input as out= (one frame of the stack, given as a 2-D frame)
     frame = truth[1].copy() if kind != "torch" else torch.from_numpy(truth[1].copy())
     back = run(frame, mask=mask, out=frame)
-    assert _same(back, expected[1])
+    assert same(back, expected[1])
 
 
 def test_out_overlapping_the_input_is_refused(cpu, bad_frames):
@@ -190,14 +187,14 @@ def test_uint16_tensors_are_taken_like_uint16_arrays(cpu, rng, torch):
     counts = rng.integers(0, 60000, (2, 21, 17)).astype(np.uint16)
     expected = ipc_taichi.decouple(counts)
     got = ipc_taichi.decouple(torch.from_numpy(counts))
-    assert got.dtype == torch.float64 and _same(got, expected)
+    assert got.dtype == torch.float64 and same(got, expected)
 
 
 def test_bfloat16_cpu_tensors_are_converted(cpu, rng, torch):
     signal = torch.from_numpy(rng.uniform(0, 60000, (21, 17))).to(torch.bfloat16)
     expected = ipc_taichi.decouple(signal.to(torch.float64).numpy())
     got = ipc_taichi.decouple(signal)
-    assert got.dtype == torch.float64 and _same(got, expected)
+    assert got.dtype == torch.float64 and same(got, expected)
     coupled = ipc_taichi.couple(signal, mask=np.eye(21, 17, dtype=bool))
-    assert _same(coupled, ipc_taichi.couple(signal.to(torch.float64).numpy(),
+    assert same(coupled, ipc_taichi.couple(signal.to(torch.float64).numpy(),
                                             mask=np.eye(21, 17, dtype=bool)))

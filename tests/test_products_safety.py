@@ -13,8 +13,7 @@ from astropy.io import fits
 
 from ipc_taichi.gpus import cuda_present
 from ipc_taichi.reference import couple_reference
-
-ENV = dict(os.environ, IPC_TAICHI_ARCH="cpu", IPC_TAICHI_PRECISION="f64")
+from tests.helpers import CPU_ENV as ENV
 
 
 def _start(*args):
