@@ -30,6 +30,7 @@ import weakref
 
 import numpy as np
 
+from . import runtime
 from .errors import IPCInputError
 from .gpus import CUDA_DRIVER
 
@@ -438,8 +439,6 @@ def pinned_empty(shape, dtype=np.float64, arch=None, driver=None):
     memory is unlocked when the array is garbage collected. Off CUDA it is a
     plain :func:`numpy.empty`.
     """
-    from . import runtime
-
     if arch is None:
         info = runtime.current()
         arch = info.arch if info is not None else "cpu"

@@ -6,7 +6,7 @@ here, so that nothing outside the core imports a private module. The core is
 the private modules (``ipc_taichi/_*.py``: ``_engine``, ``_kernels``,
 ``_alpha``, ``_device``, ``_inputs``, ``_warm``, ...) and the three modules
 that face them: :mod:`ipc_taichi.coupling`, :mod:`ipc_taichi.decoupling` and
-this one (``tests/test_structure.py`` checks it).
+this one (``tests/test_repository.py`` checks it).
 
 Workspaces
     :func:`cached_workspaces`, :func:`workspace_cache_info`,

@@ -136,3 +136,130 @@ def test_the_papers_stopping_rule_defaults_are_written_once():
                         retyped.add(str(path.relative_to(ROOT)))
     assert retyped - _RETYPED_ELSEWHERE == set()
     assert _RETYPED_ELSEWHERE - retyped == set(), "fixed: take it off the list"
+
+
+# ----------------------------------------------------------------- the core's face
+
+# The core: the private modules (``ipc_taichi/_*.py``) and the modules that face
+# them. Nothing else imports a private module (the benchmark and the tests go
+# through ipc_taichi.engine).
+CORE_FACES = {"ipc_taichi.coupling", "ipc_taichi.decoupling", "ipc_taichi.engine"}
+
+
+def _is_private(module):
+    return module.startswith("ipc_taichi.") and any(
+        part.startswith("_") and not part.startswith("__") for part in module.split("."))
+
+
+def _python_files():
+    """Every Python file of the checkout that git tracks (or, outside git, finds)."""
+    try:
+        listed = subprocess.run(["git", "ls-files", "*.py"], cwd=ROOT, capture_output=True,
+                                text=True, check=True).stdout.split()
+        paths = [ROOT / name for name in listed]
+    except (OSError, subprocess.CalledProcessError):
+        paths = [p for p in ROOT.rglob("*.py") if ".venv" not in p.parts and "build" not in p.parts]
+    return [p for p in paths if p.is_file()]
+
+
+def _module_name(path):
+    parts = list(path.relative_to(ROOT).with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts.pop()
+    return ".".join(parts)
+
+
+def _imports(path, where="anywhere"):
+    """``[(line, module, in_function)]``: what ``path`` imports, relative imports
+    resolved, ``from M import name`` given as ``M.name`` when that is a module
+    of ipc_taichi, else ``M``."""
+    modules = _library_modules()
+    name = _module_name(path)
+    package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+    tree = ast.parse(path.read_text())
+    in_function = set()
+    for node in ast.walk(tree):
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            in_function |= {id(sub) for sub in ast.walk(node) if sub is not node}
+    found = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            names = [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                anchor = package.split(".")[:len(package.split(".")) - node.level + 1]
+                base = ".".join(anchor + ([base] if base else []))
+            names = [f"{base}.{a.name}" if f"{base}.{a.name}" in modules else base
+                     for a in node.names]
+        else:
+            continue
+        found += [(node.lineno, m, id(node) in in_function) for m in names]
+    return found
+
+
+def test_nothing_outside_the_core_imports_a_private_module():
+    """No module outside the core (the private modules and :data:`CORE_FACES`)
+    imports ``ipc_taichi._anything``: not the library, the tests, the analysis,
+    the figures or the docs."""
+    offenders = []
+    for path in _python_files():
+        importer = _module_name(path)
+        if importer in CORE_FACES or _is_private(importer):
+            continue
+        offenders += [f"{path.relative_to(ROOT)}:{line}: {module}"
+                      for line, module, _ in _imports(path) if _is_private(module)]
+    assert offenders == []
+    # the check sees real imports: the core does import its private modules
+    core = _imports(ROOT / "ipc_taichi" / "engine.py")
+    assert ("ipc_taichi._engine" in {m for _, m, _ in core})
+
+
+# Function-level imports of library modules, kept on purpose: the file (or folder)
+# and why. Every other import of a library module is at the top of its module.
+IMPORTED_WHEN_CALLED = {
+    "ipc_taichi/cli/": "each subcommand imports its work when it runs, so `ipc-taichi "
+                       "--help` and `decouple` do not load calibrate/ or discover/ "
+                       "(0.4 s each, scipy and matplotlib)",
+}
+# Files other work owns now (issue 29): their light imports still inside functions;
+# each entry must still hold one, so the list can only shrink.
+_MOVED_AFTER_MERGE = {"ipc_taichi/discover/effects.py", "ipc_taichi/products/conventions.py",
+                      "ipc_taichi/products/fits.py", "ipc_taichi/products/options.py",
+                      "ipc_taichi/products/roman.py"}
+
+
+def test_library_imports_are_at_the_top_of_their_modules():
+    """A library module imports its sibling modules at its top, where a reader
+    sees what it depends on and the circle check sees it too; an import inside a
+    function only where :data:`IMPORTED_WHEN_CALLED` says why. (Optional
+    dependencies, e.g. torch or jwst, are not sibling modules: not checked here.)"""
+    inside = {}
+    for path in _library_modules().values():
+        rel = str(path.relative_to(ROOT))
+        if any(rel.startswith(kept) for kept in IMPORTED_WHEN_CALLED):
+            continue
+        for line, module, in_function in _imports(path):
+            if in_function and (module == "ipc_taichi" or module.startswith("ipc_taichi.")):
+                inside.setdefault(rel, []).append(f"{line}: {module}")
+    assert set(inside) - _MOVED_AFTER_MERGE == set(), inside
+    assert _MOVED_AFTER_MERGE - set(inside) == set(), "moved: take it off the list"
+
+
+def test_cuda_presence_is_asked_of_one_function():
+    """``gpus.cuda_present`` answers "is there CUDA?" for the library, the tests
+    and the Makefile (which runs ``ipc_taichi/gpus.py`` as a script: the answer
+    must be the same), and only gpus.py names the driver library."""
+    import sys
+
+    from ipc_taichi.gpus import cuda_present
+
+    script = subprocess.run([sys.executable, str(ROOT / "ipc_taichi" / "gpus.py")],
+                            capture_output=True, text=True, check=True, cwd="/")
+    assert script.stdout.strip() == ("yes" if cuda_present() else "")
+    assert "ipc_taichi/gpus.py" in (ROOT / "Makefile").read_text()
+    driver = "lib" + "cuda"  # (spelled so that this file does not name it)
+    naming = [str(p.relative_to(ROOT)) for p in _python_files()
+              if f'"{driver}' in p.read_text() or f"'{driver}" in p.read_text()]
+    assert naming == ["ipc_taichi/gpus.py"]
+    assert driver not in (ROOT / "Makefile").read_text()
