@@ -3,6 +3,7 @@
 import json
 
 import numpy as np
+import pytest
 
 from ipc_taichi.bench import render_markdown, run_benchmark
 from ipc_taichi.datasets import star_field
@@ -176,6 +177,7 @@ def test_cli_refuses_a_tiny_jwst_ramp(cli, tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.slow  # a calibration on flat ramps: 10 s
 def test_calibrate_row_is_measured_and_rendered():
     from ipc_taichi.bench.launch import work
     from ipc_taichi.bench.render import render_section

@@ -39,6 +39,7 @@ def files(tmp_path_factory):
     return dark_path, flats
 
 
+@pytest.mark.slow  # a 256 x 256 calibration: 10 s
 def test_rising_one_level_flats_beside_flat_hot_pixels_name_brighter_fatter(cpu, files):
     dark, flats = files
     result = calibrate([dark], flats, gain=GAIN, read_noise=12.0 * np.sqrt(2.0))
