@@ -10,6 +10,7 @@ import ipc_taichi
 from ipc_taichi.cli import main
 from ipc_taichi.datasets import worked_example
 from ipc_taichi.gpus import cuda_present
+from tests.helpers import optional
 
 os.environ.setdefault("IPC_TAICHI_ARCH", "cpu")
 os.environ.setdefault("IPC_TAICHI_PRECISION", "f64")
@@ -61,7 +62,7 @@ def cpu():
 def torch():
     """PyTorch, or the test is skipped with the reason (an optional dependency:
     the Python 3.12/3.13 lanes install none)."""
-    return pytest.importorskip("torch", reason="PyTorch is not installed (pip install torch)")
+    return pytest.importorskip("torch", reason=optional("torch"))
 
 
 @pytest.fixture

@@ -5,7 +5,7 @@
 - :func:`same`: bit-identical arrays (NaN equal to NaN), of any array kind;
 - :func:`next_to`: pixels beside masked ones;
 - :func:`write_sci`: a FITS file with a SCI extension (and more);
-- :func:`needs`: an optional dependency, or the test is skipped with the reason.
+- :func:`optional`: why a test of an optional dependency is skipped, and what to install.
 """
 
 import os
@@ -13,7 +13,6 @@ import subprocess
 import sys
 
 import numpy as np
-import pytest
 from astropy.io import fits
 
 CPU_ENV = dict(os.environ, IPC_TAICHI_ARCH="cpu", IPC_TAICHI_PRECISION="f64")
@@ -26,12 +25,12 @@ _EXTRA = {"torch": "torch", "roman_datamodels": "ipc_taichi[roman]", "asdf": "ip
           "galsim": "galsim", "hypothesis": "hypothesis"}
 
 
-def needs(module):
-    """``module`` imported, or the calling test (or module, at import) skipped
-    with the reason: it is an optional dependency, not installed here."""
+def optional(module):
+    """The reason a test needing ``module`` is skipped where it is not installed
+    (``pytest.importorskip(module, reason=optional(module))``): an optional
+    dependency, and what to install."""
     top = module.split(".")[0]
-    return pytest.importorskip(module, reason=f"{top} is not installed (optional: "
-                                              f"pip install '{_EXTRA.get(top, top)}')")
+    return f"{top} is not installed (optional: pip install '{_EXTRA.get(top, top)}')"
 
 
 def run_cli(*args, env=CPU_ENV, timeout=300):

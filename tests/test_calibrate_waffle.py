@@ -15,9 +15,10 @@ import numpy as np
 import pytest
 
 from ipc_taichi.calibrate import calibrate
-from tests.helpers import needs
+from tests.helpers import optional
 
-needs("solid_waffle")  # the whole file: the flats are solid-waffle's
+# the whole file: the flats are solid-waffle's
+pytest.importorskip("solid_waffle", reason=optional("solid_waffle"))
 from tests.independent import waffle  # noqa: E402
 
 pytestmark = pytest.mark.slow

@@ -10,7 +10,7 @@ import pytest
 
 import ipc_taichi
 from ipc_taichi import engine
-from tests.helpers import same
+from tests.helpers import optional, same
 
 
 @pytest.fixture
@@ -157,7 +157,7 @@ def kind(request):
 
 @pytest.mark.parametrize("function", ["couple", "decouple"])
 def test_out_given_as_the_input_keeps_bad_pixels(cpu, bad_frames, kind, function):
-    torch = pytest.importorskip("torch") if kind == "torch" else None
+    torch = pytest.importorskip("torch", reason=optional("torch")) if kind == "torch" else None
     truth, mask = bad_frames
     run = getattr(ipc_taichi, function)
     expected = run(truth, mask=mask)

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 from ipc_taichi.reference import couple_reference
-from tests.helpers import CPU_ENV, needs
+from tests.helpers import CPU_ENV, optional
 
-needs("jwst")  # the whole file: the Step is jwst's
-datamodels = needs("stdatamodels.jwst.datamodels")
+pytest.importorskip("jwst", reason=optional("jwst"))  # the whole file: the Step is jwst's
+datamodels = pytest.importorskip("stdatamodels.jwst.datamodels", reason=optional("stdatamodels"))
 RampModel, SuperBiasModel = datamodels.RampModel, datamodels.SuperBiasModel
 from ipc_taichi.products.jwst_step import Detector1TaichiPipeline, IPCTaichiStep  # noqa: E402
 

@@ -7,11 +7,13 @@ filled with a truth in electrons coupled by the independent NumPy model.
 import os
 
 import numpy as np
+import pytest
 
 from ipc_taichi.reference import couple_reference
-from tests.helpers import needs, next_to
+from tests.helpers import next_to, optional
 
-rdm = needs("roman_datamodels.datamodels")  # the whole file: Roman ASDF products
+# the whole file: Roman ASDF products
+rdm = pytest.importorskip("roman_datamodels.datamodels", reason=optional("roman_datamodels"))
 
 DO_NOT_USE = 1
 GAIN, EXPTIME = 2.0, 139.8

@@ -7,9 +7,10 @@ import pytest
 import ipc_taichi
 from ipc_taichi import DivergenceError, Geometry, ParametricLaw, TabulatedLaw
 from ipc_taichi.reference import couple_reference, decouple_reference
-from tests.helpers import needs
+from tests.helpers import optional
 
-needs("hypothesis")  # the whole file: random cases drawn by hypothesis
+# the whole file: random cases drawn by hypothesis
+pytest.importorskip("hypothesis", reason=optional("hypothesis"))
 from hypothesis import HealthCheck, given, settings  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
 
