@@ -81,7 +81,6 @@ def test_cupy_arrays_round_trip():
 
 
 def test_stack_reuses_buffers_and_compiles_nothing_new():
-
     rng = np.random.default_rng(5)
     cube = np.stack([couple_reference(f) for f in rng.uniform(0, 60000, (6, 200, 180))])
     ipc_taichi.init("cuda", "f32")
