@@ -6,7 +6,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed-stamp
 export IPC_TAICHI_ARCH ?= auto
 
-.PHONY: install install-gpu test test-gpu demo bench figures lock clean lint docs test-py312 test-py313
+.PHONY: install install-gpu test test-quick test-gpu demo bench figures lock clean lint docs test-py312 test-py313
 
 $(STAMP): pyproject.toml requirements.lock
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
@@ -18,8 +18,13 @@ $(STAMP): pyproject.toml requirements.lock
 install: $(STAMP)
 
 # Tests run Taichi on the CPU arch in f64; GPU tests (marker `gpu`) skip without CUDA.
+# `make test`: every test (CI); `make test-quick`: the development lane, without the
+# tests marked `slow` (full-size calibrations, the recorded kernel outputs).
 test: install
 	IPC_TAICHI_ARCH=cpu IPC_TAICHI_PRECISION=f64 $(BIN)/python -m pytest -q -m "not gpu"
+
+test-quick: install
+	IPC_TAICHI_ARCH=cpu IPC_TAICHI_PRECISION=f64 $(BIN)/python -m pytest -q -m "not gpu and not slow"
 
 # A CUDA machine: Python 3.12 and a CUDA build of PyTorch, in build/venv-gpu, without the
 # CPU lock (it pins a CPU torch for Python 3.11). --system-site-packages keeps a
@@ -27,7 +32,8 @@ test: install
 PY_GPU ?= python3.12
 GPU_VENV := build/venv-gpu
 GPU_STAMP := $(GPU_VENV)/.installed-stamp
-HAVE_CUDA := $(shell ldconfig -p 2>/dev/null | grep -q 'libcuda\.so\.1' && echo yes)
+# "yes" where ipc_taichi.gpus.cuda_present() says so (the file runs without the package)
+HAVE_CUDA := $(shell $(PY) ipc_taichi/gpus.py 2>/dev/null)
 
 $(GPU_STAMP): pyproject.toml
 	test -x $(GPU_VENV)/bin/python || $(PY_GPU) -m venv --system-site-packages $(GPU_VENV)
@@ -74,13 +80,15 @@ docs: install
 	@echo "API reference: docs/api/_build/html/index.html"
 
 # The test suite on Python 3.12 / 3.13 (pyenv's, or PY312=/path/to/python3.12), in a venv
-# under /tmp pinned by requirements-py3XX.lock (torch left out: see .ci/test-python).
+# under /tmp pinned by requirements-py3XX.lock (torch left out: its tests are skipped,
+# see .ci/test-python). MARK picks the tests: MARK="not gpu and not slow" is the quick lane.
 PY312 ?= $(HOME)/.pyenv/versions/3.12.1/bin/python
 PY313 ?= $(HOME)/.pyenv/versions/3.13.0/bin/python
+MARK ?= not gpu
 test-py312:
-	.ci/test-python $(PY312) requirements-py312.lock /tmp/ipc-taichi-py312
+	.ci/test-python $(PY312) requirements-py312.lock /tmp/ipc-taichi-py312 -m "$(MARK)"
 test-py313:
-	.ci/test-python $(PY313) requirements-py313.lock /tmp/ipc-taichi-py313
+	.ci/test-python $(PY313) requirements-py313.lock /tmp/ipc-taichi-py313 -m "$(MARK)"
 
 clean:
 	rm -rf $(VENV) $(GPU_VENV) build *.egg-info .pytest_cache .hypothesis docs/api/_build

@@ -30,7 +30,9 @@ import weakref
 
 import numpy as np
 
+from . import runtime
 from .errors import IPCInputError
+from .gpus import CUDA_DRIVER
 
 __all__ = ["kind_of", "to_torch", "from_torch", "torch_dtype", "check_torch_device",
            "ndarray_pointer", "CudaDriver", "cuda_driver", "pinned_for_call", "pinned_empty",
@@ -235,7 +237,7 @@ class CudaDriver:
     """
 
     def __init__(self, lib=None):
-        self.lib = lib if lib is not None else ctypes.CDLL("libcuda.so.1")
+        self.lib = lib if lib is not None else ctypes.CDLL(CUDA_DRIVER)
         self._ctx = None
 
     def _check(self, code, what):
@@ -437,8 +439,6 @@ def pinned_empty(shape, dtype=np.float64, arch=None, driver=None):
     memory is unlocked when the array is garbage collected. Off CUDA it is a
     plain :func:`numpy.empty`.
     """
-    from . import runtime
-
     if arch is None:
         info = runtime.current()
         arch = info.arch if info is not None else "cpu"

@@ -30,8 +30,12 @@ import os
 import numpy as np
 
 from . import iteration
+from .decoupling import decouple
 from .errors import IPCInputError
+from .gpus import gpu_cluster
 from .model import CouplingModel
+from .products import decouple_file
+from .products.options import ProductOptions
 from .runtime import THREADS_ENV
 from .tiling import decouple_blocks, halo_for, tile_maxima
 
@@ -63,8 +67,6 @@ def local_client(scheduler=None, workers=None, memory_limit="auto", gpus=None):
     if scheduler:
         return Client(scheduler)
     if gpus is not None:
-        from .gpus import gpu_cluster
-
         client = Client(gpu_cluster(list(gpus) or None))
         client._ipc_taichi_owns_cluster = True
         return client
@@ -99,8 +101,6 @@ class FileResult(dict):
 def decouple_one_file(input_path, output_path, options):
     """Read, decouple and write one product (runs on a worker). ``options``:
     the keyword arguments of :func:`ipc_taichi.products.decouple_file`."""
-    from .products import decouple_file
-
     return decouple_file(input_path, output_path, **options)
 
 
@@ -108,8 +108,6 @@ def _task_options(options, model):
     """``options`` (a ProductOptions, or a dict of its fields plus any of
     ``model``/``law``/``geometry``/``edge``) -> the model arguments and one
     :class:`~ipc_taichi.products.ProductOptions`."""
-    from .products.options import ProductOptions
-
     if isinstance(options, ProductOptions):
         options = {"options": options}
     options = dict(options or {})
@@ -201,8 +199,6 @@ def _one_line(path, exc):
 
 
 def _decouple_frames(block, options):
-    from .decoupling import decouple
-
     return np.asarray(decouple(block, **options), dtype=np.float64)
 
 
@@ -223,8 +219,6 @@ def decouple_stack(cube, client, **options):
 
 def _decouple_fixed(block, n, options):
     """``n`` Jacobi iterations on one overlapped block (map_overlap's function)."""
-    from .decoupling import decouple
-
     return np.asarray(decouple(block, max_iter=n, tol=0, **options), dtype=np.float64)
 
 

@@ -61,7 +61,7 @@ def couple(signal, law=None, geometry=None, edge=None, arch=None, precision=None
     out : array, optional
         Where to write the result: the input's kind, its shape, the runtime
         precision, contiguous (e.g. a page-locked buffer from
-        :func:`ipc_taichi._device.pinned_empty` reused frame after frame).
+        :func:`ipc_taichi.engine.pinned_empty` reused frame after frame).
 
     Returns
     -------

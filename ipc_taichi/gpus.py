@@ -16,12 +16,40 @@ On a cluster, start one worker per GPU yourself, e.g. on each node::
 
 (or ``dask cuda worker tcp://SCHEDULER:8786`` with dask-cuda), and pass the
 scheduler address to ``ipc-taichi decouple --scheduler``.
+
+"Is there CUDA?" is asked of one function, :func:`cuda_present`, everywhere:
+the benchmark's CUDA rows, the test suite's ``gpu`` marker and the Makefile
+(which runs this file as a script: ``python ipc_taichi/gpus.py`` prints
+``yes`` or nothing, so this module imports nothing of the package).
 """
 
 import ctypes
 import os
 
-__all__ = ["visible_gpus", "worker_env", "gpu_cluster"]
+__all__ = ["CUDA_DRIVER", "cuda_present", "visible_gpus", "worker_env", "gpu_cluster"]
+
+CUDA_DRIVER = "libcuda.so.1"
+"""The CUDA driver library (it ships with the NVIDIA driver, so no dependency)."""
+
+
+def _driver_device_count():
+    """How many devices the CUDA driver reports to this process (it honours
+    ``CUDA_VISIBLE_DEVICES``); 0 without a driver or when it fails to start."""
+    try:
+        lib = ctypes.CDLL(CUDA_DRIVER)
+    except OSError:
+        return 0
+    count = ctypes.c_int()
+    if lib.cuInit(0) != 0 or lib.cuDeviceGetCount(ctypes.byref(count)) != 0:
+        return 0
+    return count.value
+
+
+def cuda_present():
+    """Whether this process can run on a CUDA GPU: the driver loads, starts,
+    and reports at least one device (``CUDA_VISIBLE_DEVICES=""`` hides them
+    all). Does not initialise Taichi or PyTorch."""
+    return _driver_device_count() > 0
 
 
 def visible_gpus():
@@ -32,14 +60,7 @@ def visible_gpus():
     env = os.environ.get("CUDA_VISIBLE_DEVICES")
     if env is not None:
         return [g.strip() for g in env.split(",") if g.strip() and not g.strip().startswith("-")]
-    try:
-        lib = ctypes.CDLL("libcuda.so.1")
-    except OSError:
-        return []
-    count = ctypes.c_int()
-    if lib.cuInit(0) != 0 or lib.cuDeviceGetCount(ctypes.byref(count)) != 0:
-        return []
-    return [str(i) for i in range(count.value)]
+    return [str(i) for i in range(_driver_device_count())]
 
 
 def worker_env(gpu):
@@ -96,3 +117,7 @@ def gpu_cluster(gpus=None, use_dask_cuda=None, **scheduler_options):
                for g in gpus}
     return SpecCluster(workers=workers,
                        scheduler={"cls": Scheduler, "options": scheduler_options})
+
+
+if __name__ == "__main__":  # the Makefile's question: `python ipc_taichi/gpus.py`
+    print("yes" if cuda_present() else "")

@@ -1,6 +1,5 @@
 """Tests run Taichi on the CPU arch in f64 unless marked ``gpu``."""
 
-import ctypes
 import os
 from types import SimpleNamespace
 
@@ -10,21 +9,15 @@ import pytest
 import ipc_taichi
 from ipc_taichi.cli import main
 from ipc_taichi.datasets import worked_example
+from ipc_taichi.gpus import cuda_present
+from tests.helpers import optional
 
 os.environ.setdefault("IPC_TAICHI_ARCH", "cpu")
 os.environ.setdefault("IPC_TAICHI_PRECISION", "f64")
 
 
-def cuda_available():
-    try:
-        ctypes.CDLL("libcuda.so.1")
-        return True
-    except OSError:
-        return False
-
-
 def pytest_collection_modifyitems(config, items):
-    if cuda_available():
+    if cuda_present():
         return
     skip = pytest.mark.skip(reason="needs a CUDA GPU")
     for item in items:
@@ -63,6 +56,13 @@ def _precision_restored():
 def cpu():
     """The CPU/f64 runtime the tests assume."""
     return ipc_taichi.init("cpu", "f64")
+
+
+@pytest.fixture
+def torch():
+    """PyTorch, or the test is skipped with the reason (an optional dependency:
+    the Python 3.12/3.13 lanes install none)."""
+    return pytest.importorskip("torch", reason=optional("torch"))
 
 
 @pytest.fixture

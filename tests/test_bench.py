@@ -3,10 +3,12 @@
 import json
 
 import numpy as np
+import pytest
 
 from ipc_taichi.bench import render_markdown, run_benchmark
 from ipc_taichi.datasets import star_field
 from ipc_taichi.reference import couple_reference, decouple_numpy, decouple_reference
+from tests.helpers import optional
 
 
 def test_numpy_peer_matches_reference(rng):
@@ -36,11 +38,12 @@ def test_tiny_run_writes_results(tmp_path):
         assert r["repeats"] == 2 and len(r["times_s"]) == 2 and r["max_error"] < 0.05
         assert r["iterations"] == rows["numpy"]["iterations"]
     # NumPy's full-frame temporaries (several frames of 512 KiB, above malloc's mmap
-    # threshold) show in the peak RSS; Taichi's reused working arrays may come from
-    # memory the process already holds (then the growth is ~0). At 64x64 NumPy's
-    # temporaries too could be served from held memory: a fresh clone's CI saw 0.
+    # threshold) show in the peak RSS. Taichi's reused working arrays may come from
+    # memory the process already holds, but the measured frame is read into new
+    # memory after the base RSS is taken, so the growth is at least that frame. (At
+    # 64x64 temporaries could be served from held memory: a fresh clone's CI saw 0.)
     assert rows["numpy"]["peak_bytes"] >= 2 * rows["numpy"]["frame_bytes"]
-    assert rows["taichi-cpu-f64"]["peak_bytes"] >= 0
+    assert rows["taichi-cpu-f64"]["peak_bytes"] >= rows["taichi-cpu-f64"]["frame_bytes"]
     # the first call compiles the kernels (seconds), a warm call on 256x256 takes milliseconds
     taichi = rows["taichi-cpu-f64"]
     assert taichi["first_call_s"] > 5 * taichi["warm_call_s"] > 0
@@ -74,7 +77,7 @@ def test_floor_measurement_is_positive_and_rendered(cpu):
     assert "the cost of its alphas alone" in text and "H100, 4096x4096 f64" in text
 
 
-def test_cuda_section_runs_on_cpu_stand_in(cpu):
+def test_cuda_section_runs_on_cpu_stand_in(cpu, torch):
     """The CUDA rows' code, run with PyTorch CPU tensors as the device: every
     row is timed and right, and the section renders (without verdicts: no GPU)."""
     from ipc_taichi import runtime
@@ -152,6 +155,7 @@ def test_row_beside_the_jwst_ipc_step(cpu):
     from ipc_taichi import runtime
     from ipc_taichi.bench import measure_pipeline_ipc, render_pipeline
 
+    pytest.importorskip("jwst", reason=optional("jwst"))  # the row beside jwst's own ipc step
     try:
         result = measure_pipeline_ipc(size=64, nints=1, ngroups=2, repeats=1)
     finally:
@@ -173,6 +177,7 @@ def test_cli_refuses_a_tiny_jwst_ramp(cli, tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.slow  # a calibration on flat ramps: 10 s
 def test_calibrate_row_is_measured_and_rendered():
     from ipc_taichi.bench.launch import work
     from ipc_taichi.bench.render import render_section

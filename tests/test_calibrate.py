@@ -9,17 +9,8 @@ from astropy.io import fits
 from ipc_taichi.calibrate import calibrate, flats, hotpixels, lawfit, reffiles
 from ipc_taichi.errors import IPCInputError
 from ipc_taichi.model import CouplingModel
+from tests.helpers import optional, write_sci
 from tests.independent import ipcgen
-
-
-def _write(path, sci, bunit="electron", **extra):
-    hdus = [fits.PrimaryHDU(), fits.ImageHDU(np.asarray(sci, np.float32), name="SCI")]
-    hdus[1].header["BUNIT"] = bunit
-    for name, data in extra.items():
-        hdus.append(fits.ImageHDU(data, name=name))
-    fits.HDUList(hdus).writeto(path)
-    return str(path)
-
 
 # ---- hot pixels ----------------------------------------------------------------------
 
@@ -125,7 +116,7 @@ def test_jwst_ipc_reference_is_inverted(tmp_path):
 
 
 def test_roman_ipc_reference_is_forward(tmp_path):
-    asdf = pytest.importorskip("asdf")
+    asdf = pytest.importorskip("asdf", reason=optional("asdf"))
     kernel = np.array([[0.0021, 0.0156, 0.0021], [0.0138, 0.9328, 0.0138],
                        [0.0021, 0.0156, 0.0021]])
     path = tmp_path / "roman_ipc.asdf"
@@ -177,7 +168,7 @@ def small_dark(tmp_path):
             truth[g, y, x] = (g + 1) * (3000.0 + 2000.0 * k)
     ramp = np.array([ipcgen.couple(t, "constant") for t in truth])
     ramp += rng.normal(0, 3.0, ramp.shape)
-    return _write(tmp_path / "dark.fits", ramp[None] / 2.0, bunit="DN")
+    return write_sci(tmp_path / "dark.fits", ramp[None] / 2.0, bunit="DN")
 
 
 def test_calibrate_python_and_model_file(cpu, tmp_path, small_dark):
@@ -210,14 +201,14 @@ def test_calibrate_cli(cpu, cli, tmp_path, small_dark):
 
 
 def test_darks_without_hot_pixels_and_one_flat_level(cpu, tmp_path, rng):
-    dark = _write(tmp_path / "d.fits", rng.normal(0, 5.0, (3, 256, 256)))
+    dark = write_sci(tmp_path / "d.fits", rng.normal(0, 5.0, (3, 256, 256)))
     with pytest.raises(IPCInputError, match="no isolated hot pixel"):
         calibrate([dark], output=str(tmp_path / "m.json"))
     assert not (tmp_path / "m.json").exists()
     level = 20000.0
     frames = np.array([ipcgen.couple(rng.poisson(level, (256, 256)).astype(float), "constant")
                        for _ in range(6)])
-    flat = _write(tmp_path / "f.fits", frames)
+    flat = write_sci(tmp_path / "f.fits", frames)
     res = calibrate([dark], [flat], output=str(tmp_path / "m.json"), read_noise=0.0)
     nm = res["report"]["not_measured"]
     assert any("no isolated hot pixel" in s for s in nm)
@@ -231,7 +222,7 @@ def test_darks_and_flats_of_different_shapes_are_each_measured(cpu, tmp_path, sm
     measured on its own frame (the report records every input's shape)."""
     frames = np.array([ipcgen.couple(rng.poisson(5000.0, (64, 64)).astype(float), "constant")
                        for _ in range(4)])
-    flat = _write(tmp_path / "f.fits", frames)
+    flat = write_sci(tmp_path / "f.fits", frames)
     res = calibrate([small_dark], [flat], gain=2.0, read_noise=0.0)
     shapes = {item["role"]: item["shape"][-2:] for item in res["report"]["inputs"]}
     assert shapes == {"dark": [96, 96], "flat": [64, 64]}
@@ -255,7 +246,7 @@ def test_calibrate_cli_report_and_figures(cpu, cli, tmp_path, small_dark):
         + ["calibrate_law.png", "calibrate_map.png", "calibrate_stamp.png"])
     # the model file decouples through the command line's --model
     frame = tmp_path / "frame.fits"
-    _write(frame, np.full((32, 32), 1000.0))
+    write_sci(frame, np.full((32, 32), 1000.0))
     r = cli("decouple", str(frame), str(tmp_path / "out.fits"), "--model", str(out))
     assert r.returncode == 0, r.stderr
 
@@ -264,11 +255,11 @@ def test_saturated_flat_file_is_reported_and_the_rest_used(cpu, tmp_path, small_
     rng = np.random.default_rng(8)
     good = np.array([ipcgen.couple(rng.poisson(5000.0, (96, 96)).astype(float), "constant")
                      for _ in range(4)])
-    flat = _write(tmp_path / "f5k.fits", good / 2.0, bunit="DN")
+    flat = write_sci(tmp_path / "f5k.fits", good / 2.0, bunit="DN")
     sat = np.full((4, 96, 96), 32000.0)  # clipped at full well: no shot noise left
     dq = np.full((96, 96), 2, np.uint32)  # SATURATED on half of them
     dq[:, :40] = 0
-    saturated = _write(tmp_path / "fsat.fits", sat, bunit="DN", DQ=dq)
+    saturated = write_sci(tmp_path / "fsat.fits", sat, bunit="DN", extra=[("DQ", dq)])
     res = calibrate([small_dark], [flat, saturated], gain=2.0, read_noise=0.0)
     nm = res["report"]["not_measured"]
     assert any("fsat.fits[SCI]" in s and "saturated" in s for s in nm)
@@ -318,7 +309,7 @@ def test_independent_generator_couples_like_a_pixel_loop():
 
 
 def test_roman_asdf_ramp_darks(cpu, tmp_path):
-    rdm = pytest.importorskip("roman_datamodels.datamodels")
+    rdm = pytest.importorskip("roman_datamodels.datamodels", reason=optional("roman_datamodels"))
     rng = np.random.default_rng(5)
     shape = (96, 96)
     truth = np.full((3,) + shape, 2.0)

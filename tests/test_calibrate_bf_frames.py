@@ -10,20 +10,12 @@ minus read 0" of several integrations; hot pixels from ipcgen's dark ramp, same 
 
 import numpy as np
 import pytest
-from astropy.io import fits
 
 from ipc_taichi.calibrate import calibrate
+from tests.helpers import write_sci
 from tests.independent import ipcgen, rampgen
 
 GAIN = 2.0
-
-
-def _write(path, sci, extra=()):
-    hdus = [fits.PrimaryHDU(), fits.ImageHDU(np.asarray(sci, np.float32), name="SCI")]
-    hdus[1].header["BUNIT"] = "DN"
-    hdus += [fits.ImageHDU(data, name=name) for name, data in extra]
-    fits.HDUList(hdus).writeto(path)
-    return str(path)
 
 
 @pytest.fixture(scope="module")
@@ -38,14 +30,16 @@ def files(tmp_path_factory):
         for g in range(ngroups):
             charge = rampgen.collect(charge, rate, rampgen.BF_KERNEL, 4, rng)
             reads[i, g] = ipcgen.couple(charge, "constant") + rng.normal(0.0, 12.0, shape)
-    flats = [_write(folder / f"flat_{g}.fits", (reads[:, g] - reads[:, 0]) / GAIN)
+    flats = [write_sci(folder / f"flat_{g}.fits", (reads[:, g] - reads[:, 0]) / GAIN,
+                       bunit="DN")
              for g in range(1, ngroups)]
     dark = ipcgen.dark_ramp("constant", shape=(256, 256), ngroups=4, n_hot=300, gain=GAIN,
                             n_junk=0, n_pairs=0, seed=62)
-    dark_path = _write(folder / "dark.fits", dark["sci"])
+    dark_path = write_sci(folder / "dark.fits", dark["sci"], bunit="DN")
     return dark_path, flats
 
 
+@pytest.mark.slow  # a 256 x 256 calibration: 10 s
 def test_rising_one_level_flats_beside_flat_hot_pixels_name_brighter_fatter(cpu, files):
     dark, flats = files
     result = calibrate([dark], flats, gain=GAIN, read_noise=12.0 * np.sqrt(2.0))

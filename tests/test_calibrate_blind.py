@@ -12,6 +12,9 @@ from ipc_taichi.calibrate import calibrate
 from ipc_taichi.model import CouplingModel
 from tests.independent import ipcgen
 
+# one calibration per law (15-20 s each) behind every test of the file
+pytestmark = pytest.mark.slow
+
 AXES = {"x": (0, 1), "y": (1, 0)}
 
 

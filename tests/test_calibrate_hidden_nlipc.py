@@ -69,16 +69,19 @@ def _calibrated(case):
     return case["result"]
 
 
+@pytest.mark.slow  # one calibration per case: 15-20 s each
 def test_nonlinear_ipc_detected(cpu, case):
     model, report = _calibrated(case)
     assert report["nonlinear_ipc"]["detected"] is True, report["nonlinear_ipc"]
 
 
+@pytest.mark.slow  # one calibration per case: 15-20 s each
 def test_brighter_fatter_only_where_present(cpu, case):
     model, report = _calibrated(case)
     assert report["brighter_fatter"]["detected"] is case["bf"], report["brighter_fatter"]
 
 
+@pytest.mark.slow  # one calibration per case: 15-20 s each
 def test_alpha_on_the_flat_diagonal(cpu, case):
     model, report = _calibrated(case)
     truth = case["files"]["truth"]["alpha_ss"]
@@ -89,6 +92,7 @@ def test_alpha_on_the_flat_diagonal(cpu, case):
                                                                      axis, s)
 
 
+@pytest.mark.slow  # one calibration per case: 15-20 s each
 def test_brighter_fatter_nearest_terms(cpu, case):
     """With brighter-fatter: the kernel's nearest terms within 30 % of the hidden ones.
     Without: no kernel, or nearest terms below 30 % of what the hidden kernel would

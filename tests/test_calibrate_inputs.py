@@ -8,6 +8,7 @@ from ipc_taichi.calibrate import calibrate
 from ipc_taichi.calibrate.inputs import cube_rises, read_frames
 from ipc_taichi.errors import IPCInputError
 from ipc_taichi.products import process_fits
+from tests.helpers import optional
 
 NY = NX = 48
 
@@ -266,7 +267,7 @@ def test_everything_masked_is_said(tmp_path, rng):
 
 
 def test_roman_ramp_read_and_said(tmp_path, rng):
-    import roman_datamodels.datamodels as rdm
+    rdm = pytest.importorskip("roman_datamodels.datamodels", reason=optional("roman_datamodels"))
     model = rdm.RampModel.create_fake_data(shape=(4, NY, NX))
     model.data = (_ramp(rng, 4, 1000.0) / 2.0).astype(np.float32)  # DN
     model.pixeldq = np.zeros((NY, NX), dtype=np.uint32)

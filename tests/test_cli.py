@@ -1,22 +1,13 @@
 """The ipc-taichi command line, run as a user would (subprocess)."""
 
 import os
-import subprocess
-import sys
 
 import numpy as np
 import pytest
 from astropy.io import fits
 
 from ipc_taichi.reference import couple_reference, decouple_reference
-
-ENV = dict(os.environ, IPC_TAICHI_ARCH="cpu", IPC_TAICHI_PRECISION="f64")
-
-
-def run_cli(*args):
-    """``ipc-taichi ARGS`` as a user runs it (a new process)."""
-    return subprocess.run([sys.executable, "-m", "ipc_taichi.cli", *map(str, args)],
-                          capture_output=True, text=True, env=ENV, timeout=300)
+from tests.helpers import run_cli
 
 
 @pytest.fixture

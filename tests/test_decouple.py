@@ -5,7 +5,7 @@ import pytest
 
 import ipc_taichi
 from ipc_taichi import ConvergenceWarning, DivergenceError, IPCInputError, LawError
-from ipc_taichi._kernels import KernelConfig, get_step_kernel
+from ipc_taichi.engine import KernelConfig, get_step_kernel
 
 
 def test_random_frame_recovered(cpu):

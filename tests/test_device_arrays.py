@@ -15,11 +15,10 @@ import types
 
 import numpy as np
 import pytest
-import torch
 
 import ipc_taichi
-from ipc_taichi import IPCInputError, _device, _engine
-from ipc_taichi._kernels import (
+from ipc_taichi import IPCInputError, engine
+from ipc_taichi.engine import (
     FAN_IN,
     KernelConfig,
     get_frame_kernels,
@@ -27,6 +26,7 @@ from ipc_taichi._kernels import (
     get_step_kernel,
 )
 from ipc_taichi.reference import couple_reference, decouple_reference
+from tests.helpers import same
 
 
 @pytest.fixture
@@ -40,28 +40,24 @@ def frames(rng):
 
 
 @pytest.fixture
-def device_path(monkeypatch):
+def device_path():
     """Run NumPy inputs through Taichi ndarrays and explicit copies (the CUDA path)."""
-    monkeypatch.setattr(_engine, "FORCE_DEVICE_BUFFERS", True)
-    _engine.clear_workspaces()
-    yield
-    _engine.clear_workspaces()
+    with engine.device_buffers():
+        engine.clear_workspaces()
+        yield
+        engine.clear_workspaces()
 
 
-def _same(a, b):
-    return np.array_equal(np.asarray(a), np.asarray(b), equal_nan=True)
-
-
-def test_torch_tensors_round_trip_bit_identical(cpu, frames):
+def test_torch_tensors_round_trip_bit_identical(cpu, frames, torch):
     truth, mask = frames
     measured = ipc_taichi.couple(truth, mask=mask)
     measured_t = ipc_taichi.couple(torch.from_numpy(truth), mask=mask)
     assert isinstance(measured_t, torch.Tensor) and measured_t.dtype == torch.float64
-    assert measured_t.shape == truth.shape and _same(measured_t, measured)
+    assert measured_t.shape == truth.shape and same(measured_t, measured)
     signal, infos = ipc_taichi.decouple(measured, mask=mask, full_output=True)
     signal_t, infos_t = ipc_taichi.decouple(torch.from_numpy(measured),
                                             mask=torch.from_numpy(mask), full_output=True)
-    assert isinstance(signal_t, torch.Tensor) and _same(signal_t, signal)
+    assert isinstance(signal_t, torch.Tensor) and same(signal_t, signal)
     assert [i.max_delta for i in infos_t] == [i.max_delta for i in infos]
     assert np.isnan(signal_t[1, 5, 6].item())
     assert signal_t[0, 20, 11].item() == measured[0, 20, 11]  # masked: kept as given
@@ -69,27 +65,26 @@ def test_torch_tensors_round_trip_bit_identical(cpu, frames):
     assert np.abs(signal_t.numpy() - truth)[good].max() < 0.05
 
 
-def test_torch_frame_f32_and_integer_input(cpu, rng):
+def test_torch_frame_f32_and_integer_input(cpu, rng, torch):
     truth = rng.uniform(0, 60000, (30, 20))
     measured = couple_reference(truth)
     one = ipc_taichi.decouple(torch.from_numpy(measured).float())
     assert one.shape == (30, 20) and one.dtype == torch.float64  # the runtime precision
-    assert _same(one, ipc_taichi.decouple(measured.astype(np.float32)))
+    assert same(one, ipc_taichi.decouple(measured.astype(np.float32)))
     ints = torch.from_numpy(np.rint(truth).astype(np.int32))
-    assert _same(ipc_taichi.couple(ints), ipc_taichi.couple(np.rint(truth)))
+    assert same(ipc_taichi.couple(ints), ipc_taichi.couple(np.rint(truth)))
     graded = torch.from_numpy(measured).requires_grad_()
-    assert _same(ipc_taichi.decouple(graded), ipc_taichi.decouple(measured))
+    assert same(ipc_taichi.decouple(graded), ipc_taichi.decouple(measured))
 
 
 def test_device_path_on_cpu_bit_identical(cpu, frames, device_path, monkeypatch):
     truth, mask = frames
     host_measured = np.stack([couple_reference(f) for f in np.nan_to_num(truth)])
-    monkeypatch.setattr(_engine, "FORCE_DEVICE_BUFFERS", False)
-    want_c = ipc_taichi.couple(truth, mask=mask)
-    want_d, want_info = ipc_taichi.decouple(host_measured, mask=mask, full_output=True)
-    monkeypatch.setattr(_engine, "FORCE_DEVICE_BUFFERS", True)
+    with engine.device_buffers(False):
+        want_c = ipc_taichi.couple(truth, mask=mask)
+        want_d, want_info = ipc_taichi.decouple(host_measured, mask=mask, full_output=True)
     calls = {"up": 0, "down": 0}
-    up, down = _device.HostCopies.upload, _device.HostCopies.download
+    up, down = engine.HostCopies.upload, engine.HostCopies.download
 
     def count_up(self, nd, host):
         calls["up"] += host.size > 4  # frames and masks, not the 2-number reads
@@ -99,30 +94,30 @@ def test_device_path_on_cpu_bit_identical(cpu, frames, device_path, monkeypatch)
         calls["down"] += host.size > 4
         return down(self, host, nd)
 
-    monkeypatch.setattr(_device.HostCopies, "upload", count_up)
-    monkeypatch.setattr(_device.HostCopies, "download", count_down)
+    monkeypatch.setattr(engine.HostCopies, "upload", count_up)
+    monkeypatch.setattr(engine.HostCopies, "download", count_down)
     got_c = ipc_taichi.couple(truth, mask=mask)
-    assert _same(got_c, want_c)
+    assert same(got_c, want_c)
     assert calls == {"up": 6, "down": 3}  # per frame: frame + mask up, result down
     calls.update(up=0, down=0)
     got_d, got_info = ipc_taichi.decouple(host_measured, full_output=True, mask=mask)
-    assert _same(got_d, want_d) and calls == {"up": 6, "down": 3}
+    assert same(got_d, want_d) and calls == {"up": 6, "down": 3}
     assert [i.max_delta for i in got_info] == [i.max_delta for i in want_info]
     # a strided f32 view is converted once into the workspace's staging frame
     view = host_measured.astype(np.float32)[:, ::-1, :]
-    monkeypatch.setattr(_engine, "FORCE_DEVICE_BUFFERS", False)
-    want_v = ipc_taichi.decouple(view)
-    monkeypatch.setattr(_engine, "FORCE_DEVICE_BUFFERS", True)
-    assert _same(ipc_taichi.decouple(view), want_v)
+    with engine.device_buffers(False):
+        want_v = ipc_taichi.decouple(view)
+    assert same(ipc_taichi.decouple(view), want_v)
 
 
-def test_callback_sees_the_same_estimates_on_device_path(cpu, rng, device_path, monkeypatch):
+def test_callback_sees_the_same_estimates_on_device_path(cpu, rng, device_path):
     measured = couple_reference(rng.uniform(0, 60000, (25, 31)))
     seen = {}
     for forced in (False, True):
-        monkeypatch.setattr(_engine, "FORCE_DEVICE_BUFFERS", forced)
         seen[forced] = []
-        ipc_taichi.decouple(measured, callback=lambda q, e, s=seen[forced]: s.append(e.copy()))
+        with engine.device_buffers(forced):
+            ipc_taichi.decouple(measured,
+                                callback=lambda q, e, s=seen[forced]: s.append(e.copy()))
     assert len(seen[True]) == len(seen[False]) >= 3
     assert all(np.array_equal(a, b) for a, b in zip(seen[True], seen[False]))
 
@@ -130,8 +125,8 @@ def test_callback_sees_the_same_estimates_on_device_path(cpu, rng, device_path, 
 def test_buffers_reused_and_nothing_compiled_twice(cpu, rng, device_path):
     measured = np.stack([couple_reference(f) for f in rng.uniform(0, 60000, (4, 33, 29))])
     ipc_taichi.decouple(measured[0])
-    before = dict(_engine.workspace_cache_info())
-    workspaces = _engine.cached_workspaces()
+    before = dict(engine.workspace_cache_info())
+    workspaces = engine.cached_workspaces()
     step = get_step_kernel(KernelConfig(((0, 1), (1, 0)), "parametric", "zero", False, "f64",
                                         "sweep"))
     frame_kernels = get_frame_kernels("f64")
@@ -141,8 +136,8 @@ def test_buffers_reused_and_nothing_compiled_twice(cpu, rng, device_path):
     ipc_taichi.decouple(measured)  # a stack: every frame in the same buffers
     ipc_taichi.decouple(measured[1] * 1.01)
     ipc_taichi.couple(measured[2])
-    assert _engine.workspace_cache_info() == before
-    assert _engine.cached_workspaces()[0] is workspaces[0]
+    assert engine.workspace_cache_info() == before
+    assert engine.cached_workspaces()[0] is workspaces[0]
     assert [len(k._primal.compiled_kernels) for k in kernels] == compiled
 
 
@@ -150,7 +145,7 @@ def test_workspace_memory_is_bounded(cpu, device_path):
     """Buffers of the device path: io + two padded estimates + ok bytes + partials."""
     frame = np.ones((256, 256))
     ipc_taichi.decouple(frame, layout="pixel", max_iter=2, tol=0)
-    (nbytes,) = _engine.workspace_cache_info().values()
+    (nbytes,) = engine.workspace_cache_info().values()
     assert nbytes <= 3.5 * frame.nbytes
 
 
@@ -166,39 +161,38 @@ def test_tree_reduction_is_exact(cpu, rng):
         assert part[0, 0] == want[0] and part[0, 1] == want[1], n
 
 
-def test_pixel_layout_independent_of_run_height(cpu, rng, monkeypatch):
+def test_pixel_layout_independent_of_run_height(cpu, rng):
     """Column runs carry the vertical pairs' alphas in registers; cutting the
     columns into short runs must not change a bit (second neighbours too)."""
     g = ipc_taichi.Geometry.terms(horizontal=1.0, vertical=0.9, diagonal=0.1, second=0.02)
     truth = rng.uniform(0, 60000, (45, 38))
     measured = couple_reference(truth, geometry=g)
     long_runs = ipc_taichi.decouple(measured, geometry=g, layout="pixel", max_iter=4, tol=0)
-    monkeypatch.setattr(_engine, "PIXEL_THREADS", 64)
-    monkeypatch.setattr(_engine, "MIN_RUN_ROWS", 1)
-    _engine.clear_workspaces()
-    short_runs = ipc_taichi.decouple(measured, geometry=g, layout="pixel", max_iter=4, tol=0)
-    (ws,) = _engine.cached_workspaces()
-    assert ws.strip < 45 and ws.n_partials > 38
+    with engine.pixel_runs(threads=64, min_rows=1):
+        short_runs = ipc_taichi.decouple(measured, geometry=g, layout="pixel", max_iter=4,
+                                         tol=0)
+        (ws,) = engine.cached_workspaces()
+        assert ws.strip < 45 and ws.n_partials > 38
     assert np.array_equal(short_runs, long_runs)
     ref = decouple_reference(measured, geometry=g, max_iter=4, tol=0)[0]
     assert np.abs(long_runs - ref).max() <= 1e-10 * measured.max()
-    _engine.clear_workspaces()
+    engine.clear_workspaces()
 
 
-def test_out_argument(cpu, rng):
+def test_out_argument(cpu, rng, torch):
     measured = np.stack([couple_reference(f) for f in rng.uniform(0, 60000, (2, 20, 24))])
     out = np.empty_like(measured)
     got = ipc_taichi.decouple(measured, out=out)
-    assert got is out and _same(out, ipc_taichi.decouple(measured))
+    assert got is out and same(out, ipc_taichi.decouple(measured))
     with pytest.raises(IPCInputError, match="out: expected"):
         ipc_taichi.decouple(measured, out=np.empty((2, 20, 23)))
     tout = torch.empty(20, 24, dtype=torch.float64)
     got_t = ipc_taichi.couple(torch.from_numpy(measured[0]), out=tout)
     assert got_t.data_ptr() == tout.data_ptr()
-    assert _same(tout, ipc_taichi.couple(measured[0]))
+    assert same(tout, ipc_taichi.couple(measured[0]))
 
 
-def test_tensor_on_another_device_is_refused(cpu):
+def test_tensor_on_another_device_is_refused(cpu, torch):
     with pytest.raises(IPCInputError, match="Taichi runs on the CPU"):
         ipc_taichi.decouple(torch.empty((8, 8), device="meta"))
     with pytest.raises(IPCInputError, match="not a real number type"):
@@ -232,15 +226,15 @@ def fake_cupy(monkeypatch):
     return cls
 
 
-def test_dlpack_arrays_go_through_torch_and_come_back(cpu, frames, fake_cupy):
+def test_dlpack_arrays_go_through_torch_and_come_back(cpu, frames, fake_cupy, torch):
     truth, mask = frames
     want = ipc_taichi.couple(truth, mask=mask)
     got = ipc_taichi.couple(fake_cupy(truth), mask=mask)
-    assert type(got) is fake_cupy and _same(got._array, want)
-    assert _device.kind_of(fake_cupy(truth)) == "cupy"
+    assert type(got) is fake_cupy and same(got._array, want)
+    assert engine.kind_of(fake_cupy(truth)) == "cupy"
     # an unknown DLPack producer gets a torch tensor back (its module has no from_dlpack)
     generic = ipc_taichi.couple(_Producer(truth[0]), mask=mask)
-    assert isinstance(generic, torch.Tensor) and _same(generic, want[0])
+    assert isinstance(generic, torch.Tensor) and same(generic, want[0])
 
 
 def test_dlpack_without_torch_says_what_to_install(cpu, frames, fake_cupy, monkeypatch):
@@ -250,11 +244,13 @@ def test_dlpack_without_torch_says_what_to_install(cpu, frames, fake_cupy, monke
 
 
 def test_kind_of():
-    assert _device.kind_of(np.zeros(2)) == "numpy"
-    assert _device.kind_of([[1.0]]) == "numpy"
-    assert _device.kind_of(np.ma.zeros(2)) == "numpy"
-    assert _device.kind_of(torch.zeros(2)) == "torch"
-    assert _device.kind_of(_Producer(np.zeros(2))) == "dlpack"
+    assert engine.kind_of(np.zeros(2)) == "numpy"
+    assert engine.kind_of([[1.0]]) == "numpy"
+    assert engine.kind_of(np.ma.zeros(2)) == "numpy"
+    assert engine.kind_of(_Producer(np.zeros(2))) == "dlpack"
+    # decided from the type's module: no optional package is imported
+    assert engine.kind_of(type("Tensor", (), {"__module__": "torch"})()) == "torch"
+    assert engine.kind_of(type("Array", (), {"__module__": "jaxlib.xla"})()) == "jax"
 
 
 class _FakeLib:
@@ -283,7 +279,7 @@ class _FakeLib:
         self.calls.append(("register", address.value))
         lo, hi = address.value, address.value + nbytes.value
         if any(lo < a + n and a < hi for a, n in self.locked.items()):  # as CUDA: overlap
-            return _device.CUDA_ERROR_HOST_MEMORY_ALREADY_REGISTERED
+            return engine.CUDA_ERROR_HOST_MEMORY_ALREADY_REGISTERED
         self.locked[address.value] = nbytes.value
         return 0
 
@@ -299,22 +295,22 @@ class _FakeLib:
 
 
 def test_pinning_locks_once_and_unlocks_what_it_locked():
-    driver = _device.CudaDriver(_FakeLib())
-    big = np.zeros(_device.PIN_MIN_BYTES // 8 + 1)
+    driver = engine.CudaDriver(_FakeLib())
+    big = np.zeros(engine.PIN_MIN_BYTES // 8 + 1)
     small = np.zeros(16)
-    user = _device.pinned_empty((_device.PIN_MIN_BYTES // 8,), arch="cuda", driver=driver)
+    user = engine.pinned_empty((engine.PIN_MIN_BYTES // 8,), arch="cuda", driver=driver)
     user_address = user.ctypes.data
     assert driver.lib.locked == {user_address: user.nbytes}
     big_pages = big.ctypes.data
-    with _device.pinned_for_call([big, big[10:], small, user], "cuda", driver=driver) as pins:
+    with engine.pinned_for_call([big, big[10:], small, user], "cuda", driver=driver) as pins:
         assert set(driver.lib.locked) == {big_pages, user_address}
         assert pins.locked == [big_pages]  # the view shares big's lock
     assert driver.lib.locked == {user_address: user.nbytes}  # the user's lock stays
     with pytest.raises(KeyError):
-        with _device.pinned_for_call([big], "cuda", driver=driver):
+        with engine.pinned_for_call([big], "cuda", driver=driver):
             raise KeyError("boom")
     assert driver.lib.locked == {user_address: user.nbytes}  # unlocked on error too
-    with _device.pinned_for_call([big], "cpu", driver=driver):
+    with engine.pinned_for_call([big], "cpu", driver=driver):
         assert driver.lib.locked == {user_address: user.nbytes}  # a no-op off CUDA
     del user
     gc.collect()
@@ -322,20 +318,20 @@ def test_pinning_locks_once_and_unlocks_what_it_locked():
     with pytest.raises(RuntimeError, match="cuMemcpyHtoD failed with error 1"):
         driver.upload(0, big.ctypes.data, 8)
     driver.lib.cuMemHostRegister_v2 = lambda *args: 1  # the driver refuses to lock
-    with _device.pinned_for_call([big], "cuda", driver=driver) as pins:
+    with engine.pinned_for_call([big], "cuda", driver=driver) as pins:
         assert pins.locked == []  # copied from pageable memory instead, no error
 
 
 def test_pinning_locks_a_views_span_not_its_parent_stack():
-    driver = _device.CudaDriver(_FakeLib())
+    driver = engine.CudaDriver(_FakeLib())
     stack = np.zeros((8, 512, 1024 + 3))  # 8 frames of 4.2 MB
     frame = stack[5]
-    with _device.pinned_for_call([frame], "cuda", driver=driver) as pins:
+    with engine.pinned_for_call([frame], "cuda", driver=driver) as pins:
         assert driver.lib.locked == {frame.ctypes.data: frame.nbytes}  # not the 34 MB stack
         assert pins.locked == [frame.ctypes.data]
     assert driver.lib.locked == {}
     column = stack[:, :, 7]  # strided: from its first to its last element
-    with _device.pinned_for_call([column], "cuda", driver=driver):
+    with engine.pinned_for_call([column], "cuda", driver=driver):
         (address, nbytes), = driver.lib.locked.items()
         assert address == column.ctypes.data
         assert nbytes == (column.size - 1) * 8 * (1024 + 3) + 8
@@ -343,8 +339,8 @@ def test_pinning_locks_a_views_span_not_its_parent_stack():
 
 def test_pinning_interrupted_unlocks_what_it_locked():
     lib = _FakeLib()
-    driver = _device.CudaDriver(lib)
-    first, second = np.zeros(_device.PIN_MIN_BYTES // 8), np.zeros(_device.PIN_MIN_BYTES // 8)
+    driver = engine.CudaDriver(lib)
+    first, second = np.zeros(engine.PIN_MIN_BYTES // 8), np.zeros(engine.PIN_MIN_BYTES // 8)
     register = lib.cuMemHostRegister_v2
 
     def interrupted(address, nbytes, flags):
@@ -354,7 +350,7 @@ def test_pinning_interrupted_unlocks_what_it_locked():
 
     lib.cuMemHostRegister_v2 = interrupted
     with pytest.raises(KeyboardInterrupt):
-        with _device.pinned_for_call([first, second], "cuda", driver=driver):
+        with engine.pinned_for_call([first, second], "cuda", driver=driver):
             pass  # pragma: no cover (never entered)
     assert lib.locked == {}
     assert ("unregister", first.ctypes.data) in lib.calls
@@ -364,7 +360,7 @@ def test_ndarray_pointer_addresses_taichi_memory(cpu):
     import taichi as ti
 
     nd = ti.ndarray(ti.f64, (3, 4))
-    copies = _device.HostCopies("cpu")
+    copies = engine.HostCopies("cpu")
     host = np.arange(12.0).reshape(3, 4)
     copies.upload(nd, host)
     assert np.array_equal(nd.to_numpy(), host)
@@ -395,25 +391,24 @@ def test_gpu_cluster_pins_one_worker_per_gpu(monkeypatch):
         gpu_cluster()
 
 
-def test_torch_tensors_on_the_device_path(cpu, frames, device_path, monkeypatch):
+def test_torch_tensors_on_the_device_path(cpu, frames, device_path, monkeypatch, torch):
     """Tensors with the working arrays in Taichi ndarrays (as on CUDA): the
     frame is computed in the output tensor, no host copy of it is made."""
     truth, mask = frames
-    monkeypatch.setattr(_engine, "FORCE_DEVICE_BUFFERS", False)
-    want = ipc_taichi.decouple(truth, mask=mask)
-    monkeypatch.setattr(_engine, "FORCE_DEVICE_BUFFERS", True)
+    with engine.device_buffers(False):
+        want = ipc_taichi.decouple(truth, mask=mask)
     copies = []
-    upload = _device.HostCopies.upload
-    monkeypatch.setattr(_device.HostCopies, "upload",
+    upload = engine.HostCopies.upload
+    monkeypatch.setattr(engine.HostCopies, "upload",
                         lambda self, nd, host: (copies.append(host.shape) if host.size > 4
                                                 else upload(self, nd, host)))
     got = ipc_taichi.decouple(torch.from_numpy(truth), mask=torch.from_numpy(mask))
-    assert isinstance(got, torch.Tensor) and _same(got, want) and copies == []
-    ws = _engine.cached_workspaces()[-1]  # the one used last
+    assert isinstance(got, torch.Tensor) and same(got, want) and copies == []
+    ws = engine.cached_workspaces()[-1]  # the one used last
     assert ws.device_buffers and not isinstance(ws.prev, np.ndarray)
 
 
-def test_host_load_matches_the_load_kernel(cpu, frames, device_path, monkeypatch):
+def test_host_load_matches_the_load_kernel(cpu, frames, device_path):
     """On the CPU, NumPy loads the frame (faster than Taichi's scalar loop); the
     device path uses the load kernel: bit-identical results for inf, NaN, mask,
     the isolated edge, another dtype, a strided view, and frames with and
@@ -425,31 +420,31 @@ def test_host_load_matches_the_load_kernel(cpu, frames, device_path, monkeypatch
     inputs = [measured, measured.astype(np.float32), measured[:, ::-1, :]]
     results = {}
     for forced in (False, True):
-        monkeypatch.setattr(_engine, "FORCE_DEVICE_BUFFERS", forced)
-        _engine.clear_workspaces()
-        results[forced] = [(ipc_taichi.decouple(m, mask=mask, full_output=True),
-                            ipc_taichi.couple(m, edge="isolated"),
-                            ipc_taichi.couple(m, edge="isolated", mask=mask[::-1])[1],
-                            ipc_taichi.couple(m[1], edge="isolated")) for m in inputs]
+        engine.clear_workspaces()
+        with engine.device_buffers(forced):
+            results[forced] = [(ipc_taichi.decouple(m, mask=mask, full_output=True),
+                                ipc_taichi.couple(m, edge="isolated"),
+                                ipc_taichi.couple(m, edge="isolated", mask=mask[::-1])[1],
+                                ipc_taichi.couple(m[1], edge="isolated")) for m in inputs]
     for host, device in zip(results[False], results[True]):
         (want, want_info), *want_rest = host
         (got, info), *got_rest = device
-        assert _same(got, want) and [i.max_delta for i in info] == [
+        assert same(got, want) and [i.max_delta for i in info] == [
             i.max_delta for i in want_info]
-        assert all(_same(a, b) for a, b in zip(got_rest, want_rest))
+        assert all(same(a, b) for a, b in zip(got_rest, want_rest))
     (first, _), stack_isolated, _, alone = results[False][0]
     assert np.isnan(first[0, 5, 6]) and first[0, 20, 11] == measured[0, 20, 11]
-    assert _same(stack_isolated[1], alone)  # frame 1 after a frame with bad pixels
+    assert same(stack_isolated[1], alone)  # frame 1 after a frame with bad pixels
     assert np.array_equal(alone, couple_reference(measured[1], edge="isolated")) or \
         np.abs(alone - couple_reference(measured[1], edge="isolated")).max() <= 1e-10 * 6e4
 
 
 @pytest.mark.parametrize("forced", [False, True])
-def test_fresh_workspace_isolated_edge(cpu, rng, monkeypatch, forced):
+def test_fresh_workspace_isolated_edge(cpu, rng, forced):
     """A new workspace's ``ok`` array lets every pixel couple (border: edge rule)."""
-    monkeypatch.setattr(_engine, "FORCE_DEVICE_BUFFERS", forced)
-    _engine.clear_workspaces()
+    engine.clear_workspaces()
     truth = rng.uniform(0, 60000, (23, 19))
-    got = ipc_taichi.couple(truth, edge="isolated")
+    with engine.device_buffers(forced):
+        got = ipc_taichi.couple(truth, edge="isolated")
     assert np.abs(got - couple_reference(truth, edge="isolated")).max() <= 1e-10 * 6e4
-    _engine.clear_workspaces()
+    engine.clear_workspaces()

@@ -6,6 +6,8 @@ import numpy as np
 import pytest
 
 import ipc_taichi
+from ipc_taichi import engine
+from ipc_taichi.engine import get_frame_kernels
 from ipc_taichi.reference import couple_reference
 
 pytestmark = pytest.mark.gpu
@@ -79,19 +81,16 @@ def test_cupy_arrays_round_trip():
 
 
 def test_stack_reuses_buffers_and_compiles_nothing_new():
-    from ipc_taichi import _engine
-    from ipc_taichi._kernels import get_frame_kernels
-
     rng = np.random.default_rng(5)
     cube = np.stack([couple_reference(f) for f in rng.uniform(0, 60000, (6, 200, 180))])
     ipc_taichi.init("cuda", "f32")
-    _engine.clear_workspaces()
+    engine.clear_workspaces()
     first, infos = ipc_taichi.decouple(cube, arch="cuda", precision="f32", full_output=True)
-    cache = _engine.workspace_cache_info()
+    cache = engine.workspace_cache_info()
     kernels = get_frame_kernels("f32")
     compiled = [len(k._primal.compiled_kernels) for k in (kernels.load, kernels.store)]
     again = ipc_taichi.decouple(cube, arch="cuda", precision="f32")
-    assert len(cache) == 1 and _engine.workspace_cache_info() == cache
+    assert len(cache) == 1 and engine.workspace_cache_info() == cache
     assert [len(k._primal.compiled_kernels) for k in (kernels.load, kernels.store)] == compiled
     assert np.array_equal(first, again) and len(infos) == 6
     for k in range(6):
@@ -100,21 +99,19 @@ def test_stack_reuses_buffers_and_compiles_nothing_new():
 
 
 def test_pinned_buffers_and_device_memory():
-    from ipc_taichi import _device, _engine
-
     ipc_taichi.init("cuda", "f64")
     rng = np.random.default_rng(6)
     measured = couple_reference(rng.uniform(0, 60000, (1024, 1024)))
     want = ipc_taichi.decouple(measured, arch="cuda", precision="f64")
-    pin_in = _device.pinned_empty(measured.shape, np.float64)
+    pin_in = engine.pinned_empty(measured.shape, np.float64)
     pin_in[...] = measured
-    pin_out = _device.pinned_empty(measured.shape, np.float64)
-    _engine.clear_workspaces()
-    free0 = _device.cuda_driver().memory()[0]
+    pin_out = engine.pinned_empty(measured.shape, np.float64)
+    engine.clear_workspaces()
+    free0 = engine.cuda_driver().memory()[0]
     got = ipc_taichi.decouple(pin_in, arch="cuda", precision="f64", out=pin_out)
-    used = free0 - _device.cuda_driver().memory()[0]
+    used = free0 - engine.cuda_driver().memory()[0]
     assert got is pin_out and np.array_equal(got, want)
-    (nbytes,) = _engine.workspace_cache_info().values()
+    (nbytes,) = engine.workspace_cache_info().values()
     assert nbytes <= 3.5 * measured.nbytes
     print(f"device memory taken by the call: {used / measured.nbytes:.2f}x the frame")
 
@@ -204,27 +201,18 @@ def test_work_follows_the_callers_torch_stream():
     assert abs(float(total) - want.sum()) <= 1e-9 * abs(want.sum())  # summed on the GPU
 
 
-def test_wide_frames_and_out_as_input_on_cuda(monkeypatch):
+def test_wide_frames_and_out_as_input_on_cuda():
     """The tree's capacity made small (2**5 partials): maxima still of the
     whole frame; and out= given as the input keeps its bad pixels."""
-    from ipc_taichi import _engine, _kernels
-
     torch = _torch_cuda()
     rng = np.random.default_rng(10)
     signal = rng.uniform(0, 1000, (64, 300))
     signal[40, 290] = 60000.0
     measured = couple_reference(signal)
     ref, ref_info = ipc_taichi.decouple(measured, arch="cuda", precision="f64", full_output=True)
-    monkeypatch.setattr(_kernels, "FAN_IN", 2)
-    _kernels._clear_caches()
-    _engine.clear_workspaces()
-    try:
+    with engine.reduction_fan_in(2):
         got, info = ipc_taichi.decouple(measured, arch="cuda", precision="f64",
                                         full_output=True)
-    finally:
-        monkeypatch.undo()
-        _kernels._clear_caches()
-        _engine.clear_workspaces()
     np.testing.assert_allclose(info.max_signal, ref_info.max_signal, rtol=1e-12)
     assert np.array_equal(got, ref)
     measured[3, 4] = np.nan

@@ -13,6 +13,7 @@ import pytest
 from astropy.io import fits
 
 from ipc_taichi.reference import couple_reference
+from tests.helpers import next_to
 
 DO_NOT_USE, SATURATED, REFERENCE_PIXEL = 1, 2, 2 ** 31
 GAIN, EFFINTTM, BORDER = 2.0, 100.0, 4
@@ -44,16 +45,6 @@ def _bad_pixels(rng, shape, n):
     return mask
 
 
-def _next_to(mask):
-    """Pixels with a masked nearest neighbour, and the masked pixels."""
-    near = mask.copy()
-    near[1:] |= mask[:-1]
-    near[:-1] |= mask[1:]
-    near[:, 1:] |= mask[:, :-1]
-    near[:, :-1] |= mask[:, 1:]
-    return near
-
-
 # The true charge of a masked pixel is unknown, so the charge it exchanged
 # with its neighbours stays in them (ring 1: error up to ~alpha * its
 # charge); their error reaches the next ring through the iteration (ring 2:
@@ -62,9 +53,9 @@ ALPHA_MAX = 0.008  # donlon2018 at zero signal, its largest value
 
 
 def _rings(bad):
-    ring1 = _next_to(bad) & ~bad
-    ring2 = _next_to(_next_to(bad)) & ~ring1 & ~bad
-    return ring1, ring2, ~_next_to(_next_to(bad))
+    ring1 = next_to(bad) & ~bad
+    ring2 = next_to(next_to(bad)) & ~ring1 & ~bad
+    return ring1, ring2, ~next_to(next_to(bad))
 
 
 def _measured_electrons(truth_e):
@@ -161,7 +152,7 @@ def test_masked_pixels_do_not_couple(cli, tmp_path, rng):
     r = cli("decouple", "--law", "donlon2018", src, tmp_path / "nodq.fits", "--dq-bits", "0")
     assert r.returncode == 0, r.stderr
     wrong = fits.getdata(tmp_path / "nodq.fits", "SCI")
-    assert np.abs(wrong - truth)[_next_to(bad) & ~bad].max() > 1000
+    assert np.abs(wrong - truth)[next_to(bad) & ~bad].max() > 1000
 
 
 def test_rate_product_tiled_equals_whole(cli, tmp_path, rate_file):
@@ -350,7 +341,7 @@ def test_rateints_integration_by_integration(cli, tmp_path, rng):
     truth = truth_e / (GAIN * EFFINTTM)
     assert got[1, 10, 12] == np.float32(9e9)
     assert np.abs(got[0] - truth[0]).max() <= 2e-5 * truth[0].max()
-    far = ~_next_to(_next_to(dq[1] != 0))
+    far = ~next_to(next_to(dq[1] != 0))
     assert np.abs(got[1] - truth[1])[far].max() <= 2e-5 * truth[1].max()
     assert np.abs(got[1] - truth[1])[~far].max() > 2e-5 * truth[1].max()  # the ring
 

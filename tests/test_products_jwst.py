@@ -6,15 +6,18 @@ import sys
 
 import numpy as np
 import pytest
-from stdatamodels.jwst.datamodels import RampModel, SuperBiasModel
 
-from ipc_taichi.products.jwst_step import Detector1TaichiPipeline, IPCTaichiStep
 from ipc_taichi.reference import couple_reference
+from tests.helpers import CPU_ENV, optional
+
+pytest.importorskip("jwst", reason=optional("jwst"))  # the whole file: the Step is jwst's
+datamodels = pytest.importorskip("stdatamodels.jwst.datamodels", reason=optional("stdatamodels"))
+RampModel, SuperBiasModel = datamodels.RampModel, datamodels.SuperBiasModel
+from ipc_taichi.products.jwst_step import Detector1TaichiPipeline, IPCTaichiStep  # noqa: E402
 
 GAIN, BORDER = 2.0, 4
 DO_NOT_USE, REFERENCE_PIXEL = 1, 2 ** 31
-ENV = dict(os.environ, IPC_TAICHI_ARCH="cpu", IPC_TAICHI_PRECISION="f64", CRDS_SERVER_URL="",
-           CRDS_PATH=os.devnull)
+ENV = dict(CPU_ENV, CRDS_SERVER_URL="", CRDS_PATH=os.devnull)
 
 
 def _ramp(rng, shape=(32, 36), bias=None):

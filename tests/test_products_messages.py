@@ -17,8 +17,8 @@ from ipc_taichi.fitsio import HISTORY_WIDTH, history_lines
 from ipc_taichi.model import CouplingModel
 from ipc_taichi.products.conventions import PHYSICAL_RANGE
 from ipc_taichi.reference import couple_reference
+from tests.helpers import LAW
 
-LAW = ("--law", "donlon2018")
 SUMMARY = re.compile(
     r"^ipc-taichi: (de)?coupled \S+ -> \S+: law donlon2018, edge (zero|isolated), "
     r"(\d+ iterations, (converged|NOT converged|fixed count \(--tol 0\)), )?"

@@ -17,8 +17,8 @@ import pytest
 from astropy.io import fits
 
 from ipc_taichi.reference import couple_reference
+from tests.helpers import LAW, optional
 
-LAW = ("--law", "donlon2018")
 HST_BAD, HST_SATURATED = 4, 256
 
 
@@ -338,7 +338,7 @@ def test_truncated_fits_header_refused(cli, tmp_path, rng):
 
 
 def test_truncated_roman_file_refused(cli, tmp_path, rng):
-    rdm = pytest.importorskip("roman_datamodels.datamodels")
+    rdm = pytest.importorskip("roman_datamodels.datamodels", reason=optional("roman_datamodels"))
     model = rdm.ImageModel.create_fake_data(shape=(32, 32))
     model.data = rng.uniform(0, 10, (32, 32)).astype(np.float32)
     model.meta.exposure.effective_exposure_time = 100.0

@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 from astropy.io import fits
 
+from ipc_taichi.gpus import cuda_present
 from ipc_taichi.reference import couple_reference
-
-ENV = dict(os.environ, IPC_TAICHI_ARCH="cpu", IPC_TAICHI_PRECISION="f64")
+from tests.helpers import CPU_ENV as ENV
 
 
 def _start(*args):
@@ -141,15 +141,13 @@ def test_raw_integer_ramp_refused(cli, tmp_path):
 
 
 def test_quiet_silences_the_cuda_notice(tmp_path, rng):
-    from tests.conftest import cuda_available
-
     src = tmp_path / "in.fits"
     fits.writeto(src, rng.uniform(0, 1, (8, 8)))
     env = dict(ENV, IPC_TAICHI_ARCH="auto")
     run = [sys.executable, "-m", "ipc_taichi.cli", "couple", src]
     r = subprocess.run(run + [tmp_path / "a.fits"], capture_output=True, text=True, env=env)
     assert r.returncode == 0
-    if not cuda_available():
+    if not cuda_present():
         assert "CUDA not available" in r.stderr
     r = subprocess.run(run + [tmp_path / "b.fits", "--quiet"], capture_output=True, text=True,
                        env=env)

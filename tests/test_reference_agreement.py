@@ -3,12 +3,16 @@ geometries and edges (1e-10 relative in f64)."""
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
-from hypothesis import strategies as st
 
 import ipc_taichi
 from ipc_taichi import DivergenceError, Geometry, ParametricLaw, TabulatedLaw
 from ipc_taichi.reference import couple_reference, decouple_reference
+from tests.helpers import optional
+
+# the whole file: random cases drawn by hypothesis
+pytest.importorskip("hypothesis", reason=optional("hypothesis"))
+from hypothesis import HealthCheck, given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
 
 # a few stencils (each is one compiled kernel) with random weights
 STENCILS = [

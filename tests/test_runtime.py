@@ -3,7 +3,7 @@ import pytest
 
 import ipc_taichi
 from ipc_taichi import runtime
-from tests.conftest import cuda_available
+from ipc_taichi.gpus import cuda_present
 
 
 def test_init_is_idempotent(cpu):
@@ -26,7 +26,7 @@ def test_environment_selects_arch(monkeypatch, cpu):
 
 
 def test_explicit_cuda(cpu):
-    if cuda_available():
+    if cuda_present():
         assert ipc_taichi.init("cuda").arch == "cuda"
     else:
         with pytest.raises(ipc_taichi.ArchUnavailableError, match="CUDA was requested"):

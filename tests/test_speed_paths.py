@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import ipc_taichi
-from ipc_taichi import _engine, iteration, runtime
+from ipc_taichi import engine, iteration, runtime
 from ipc_taichi.cluster import worker_threads
 from ipc_taichi.datasets import star_field
 
@@ -152,11 +152,11 @@ def test_warm_with_bad_pixels_and_in_place(cpu):
     _within_stopping_tolerance(warm, cold)
 
 
-def test_warm_device_kernels_agree_with_host(cpu, monkeypatch):
+def test_warm_device_kernels_agree_with_host(cpu):
     _, measured = _ramp(4, size=48)
     host, host_info = ipc_taichi.decouple(measured, full_output=True, warm_start=True)
-    monkeypatch.setattr(_engine, "FORCE_DEVICE_BUFFERS", True)
-    dev, dev_info = ipc_taichi.decouple(measured, full_output=True, warm_start=True)
+    with engine.device_buffers():
+        dev, dev_info = ipc_taichi.decouple(measured, full_output=True, warm_start=True)
     assert [i.iterations for i in dev_info] == [i.iterations for i in host_info]
     np.testing.assert_allclose(dev, host, rtol=1e-12, atol=1e-9)
 

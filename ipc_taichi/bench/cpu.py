@@ -7,8 +7,12 @@ import time
 
 import numpy as np
 
+import ipc_taichi
+
+from .. import engine, runtime
+from ..engine import make_alpha
 from ..laws import donlon2018
-from ..reference import decouple_numpy
+from ..reference import decouple_numpy, decouple_reference
 
 __all__ = ["measure_row", "measure_floor", "SIZES", "KINDS", "NUMPY_REPEAT_CAP",
            "REFERENCE_MAX_SIZE"]
@@ -53,9 +57,6 @@ def measure_floor(n=1 << 22, repeats=5):
       NumPy has it), ns per pair.
     """
     import taichi as ti
-
-    from .. import runtime
-    from .._alpha import make_alpha
 
     def best(fn):
         fn()
@@ -117,9 +118,6 @@ def measure_row(spec):
                                                   spec["truth"], spec["repeats"])
     result = {"config": config}
     if config.startswith("taichi"):
-        import ipc_taichi
-        from ipc_taichi import runtime
-
         _, arch, precision = config.split("-")
         info = runtime.init(arch, precision)
         result["arch"] = info.arch
@@ -137,17 +135,13 @@ def measure_row(spec):
         run(small)
         warm = time.perf_counter() - t0
         result.update(first_call_s=first, warm_call_s=warm, compile_s=first - warm)
-        from ipc_taichi import _engine
-
         # the timed runs allocate their working buffers (reused from run to
         # run): the peak memory below includes them
-        _engine.clear_workspaces()
+        engine.clear_workspaces()
     elif config == "numpy":
         def run(frame):
             return decouple_numpy(frame)
     else:
-        from ..reference import decouple_reference
-
         def run(frame):
             out, it, conv, _ = decouple_reference(frame)
             return out, it, conv

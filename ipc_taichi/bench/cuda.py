@@ -3,8 +3,8 @@ host in and out (page-locked for the call, from the caller's pinned buffers,
 pageable), the copies alone, a stack, the CuPy peer and the floor on the
 device. ``arch="cpu"`` runs the same code with PyTorch CPU tensors standing in
 for the device (the tests do). The engine is asked only through its public
-hooks (:func:`ipc_taichi._engine.workspace_cache_info`,
-:func:`ipc_taichi._engine.frame_copies`, :func:`ipc_taichi._device.pageable_copies`).
+face, :mod:`ipc_taichi.engine` (:func:`~ipc_taichi.engine.workspace_cache_info`,
+:func:`~ipc_taichi.engine.frame_copies`, :func:`~ipc_taichi.engine.pageable_copies`).
 """
 
 import statistics
@@ -12,8 +12,13 @@ import time
 
 import numpy as np
 
+import ipc_taichi
+
+from .. import engine, runtime
 from ..datasets import uniform_frame
+from ..engine import make_alpha
 from ..laws import donlon2018
+from ..reference import couple_reference
 from .peers import CupyPeer
 
 __all__ = ["measure_cuda", "CUDA_SIZE", "STACK_FRAMES", "laws_params"]
@@ -27,8 +32,6 @@ def _floor_kernels(precision):
     (4 alphas per pixel from one load, no neighbour loads), a device copy, and
     a plain one-thread-per-pixel step without the stopping-rule maxima."""
     import taichi as ti
-
-    from .._alpha import make_alpha
 
     real = ti.f64 if precision == "f64" else ti.f32
     alpha = make_alpha("parametric", precision, fast_exp=False)
@@ -89,11 +92,6 @@ def measure_cuda(size=CUDA_SIZE, repeats=10, stack=STACK_FRAMES, arch="cuda",
     (the tests do, to keep this function honest without a GPU); the CuPy peer
     then is skipped. Returns ``{"rows": [...], "notes": [...], "device": ...}``.
     """
-    import ipc_taichi
-
-    from .. import _device, _engine, runtime
-    from ..reference import couple_reference
-
     notes = []
     try:
         import torch
@@ -122,7 +120,7 @@ def measure_cuda(size=CUDA_SIZE, repeats=10, stack=STACK_FRAMES, arch="cuda",
         measured = measured64.astype(dtype)
         tdev = "cuda" if arch == "cuda" else "cpu"
         if arch == "cuda":
-            device = _device.cuda_driver().device_name()
+            device = engine.cuda_driver().device_name()
 
         def sync():
             import taichi as ti
@@ -146,28 +144,28 @@ def measure_cuda(size=CUDA_SIZE, repeats=10, stack=STACK_FRAMES, arch="cuda",
                                        full_output=True, **kw)
 
         # NumPy in and out: page-locked for the call (the default)
-        _engine.clear_workspaces()
-        free0 = _device.cuda_driver().memory()[0] if arch == "cuda" else None
+        engine.clear_workspaces()
+        free0 = engine.cuda_driver().memory()[0] if arch == "cuda" else None
         med, best, (sig, fi) = _timed(lambda: run(measured), sync, repeats)  # noqa: B023
         add("host in/out (NumPy)", med, best, sig, fi.iterations)
         if free0 is not None:
-            used = free0 - _device.cuda_driver().memory()[0]
+            used = free0 - engine.cuda_driver().memory()[0]
             rows[-1]["device_bytes"] = int(used)
-        rows[-1]["workspace_bytes"] = sum(_engine.workspace_cache_info().values())
+        rows[-1]["workspace_bytes"] = sum(engine.workspace_cache_info().values())
         rows[-1]["frame_bytes"] = measured.nbytes
         # NumPy in and out from buffers the caller keeps page-locked
-        pin_in = _device.pinned_empty(measured.shape, dtype, arch=arch)
+        pin_in = engine.pinned_empty(measured.shape, dtype, arch=arch)
         pin_in[...] = measured
-        pin_out = _device.pinned_empty(measured.shape, dtype, arch=arch)
+        pin_out = engine.pinned_empty(measured.shape, dtype, arch=arch)
         med, best, (sig, fi) = _timed(lambda: run(pin_in, out=pin_out),  # noqa: B023
                                       sync, repeats)
         add("host in/out, pinned buffers", med, best, sig, fi.iterations)
         # the same with pageable copies (no page-locking)
-        with _device.pageable_copies():
+        with engine.pageable_copies():
             med, best, (sig, fi) = _timed(lambda: run(measured), sync, repeats)  # noqa: B023
         add("host in/out, pageable copies", med, best, sig, fi.iterations)
         # the copies alone, through the workspace the runs above used
-        copies = _engine.frame_copies()
+        copies = engine.frame_copies()
         if copies is not None:
             upload, download = copies
             med_up, best_up, _ = _timed(lambda: upload(pin_in), sync, repeats)  # noqa: B023
@@ -224,7 +222,7 @@ def measure_cuda(size=CUDA_SIZE, repeats=10, stack=STACK_FRAMES, arch="cuda",
             rows.append({"row": "note: device-resident per iteration", "precision": precision,
                          "size": size, "frames": 1, "median_ms": dev_ms / max(1, fi.iterations),
                          "best_ms": dev_ms / max(1, fi.iterations)})
-        _engine.clear_workspaces()
+        engine.clear_workspaces()
     return {"rows": rows, "notes": notes, "device": device, "arch": arch}
 
 

@@ -12,8 +12,11 @@ import tempfile
 
 import numpy as np
 
+from .. import __version__
 from ..calibrate.benchmark import measure_calibrate
 from ..datasets import star_field, uniform_frame
+from ..gpus import cuda_present
+from ..reference import couple_reference
 from .cpu import KINDS, NUMPY_REPEAT_CAP, REFERENCE_MAX_SIZE, SIZES, measure_floor, measure_row
 from .cuda import CUDA_SIZE, STACK_FRAMES, measure_cuda
 from .pipeline import PIPELINE_SIZE, measure_pipeline_ipc
@@ -104,8 +107,6 @@ def machine():
         load = os.getloadavg()
     except OSError:
         load = (float("nan"),) * 3
-    from .. import __version__
-
     return {
         "cpu": cpu, "cores": os.cpu_count(), "ram_gib": round(mem / 2**30, 1),
         "os": f"{platform.system()} {platform.release()}", "python": platform.python_version(),
@@ -113,16 +114,6 @@ def machine():
         "load_average_at_start": [round(v, 2) for v in load],
         "cuda": cuda_present(),
     }
-
-
-def cuda_present():
-    try:
-        import ctypes
-
-        ctypes.CDLL("libcuda.so.1")
-        return True
-    except OSError:
-        return False
 
 
 def _configs(cuda):
@@ -133,8 +124,6 @@ def _configs(cuda):
 
 
 def _frames(size, kind, workdir):
-    from ..reference import couple_reference
-
     truth = uniform_frame(size) if kind == "uniform" else star_field(size)
     measured = couple_reference(truth)
     paths = {}

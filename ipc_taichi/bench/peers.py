@@ -5,6 +5,7 @@ of the library."""
 
 import numpy as np
 
+from .. import iteration, laws
 from ..reference import decouple_numpy
 
 __all__ = ["CupyPeer", "PEER_SOURCE", "decouple_numpy"]
@@ -50,8 +51,6 @@ class CupyPeer:
     def __init__(self, precision):
         import cupy as cp
 
-        from .. import laws
-
         self.cp = cp
         self.dtype = np.float64 if precision == "f64" else np.float32
         real = "double" if precision == "f64" else "float"
@@ -60,8 +59,6 @@ class CupyPeer:
 
     def decouple(self, m):
         """Device-resident: ``m`` a CuPy array; returns ``(signal, iterations)``."""
-        from .. import iteration
-
         cp = self.cp
         ny, nx = m.shape
         prev, nxt = m.copy(), cp.empty_like(m)

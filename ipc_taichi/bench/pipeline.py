@@ -23,6 +23,10 @@ import time
 
 import numpy as np
 
+import ipc_taichi
+
+from ..datasets import star_field
+
 __all__ = ["measure_pipeline_ipc", "jwst_ipc_kernel", "PIPELINE_SIZE"]
 
 NIRCAM_BORDER = 4  # reference pixels on each side of a NIRCam full frame
@@ -47,9 +51,6 @@ def _ramp(size, nints, ngroups, alpha, seed):
     """``(truth, measured)`` in electrons, shape ``(nints * ngroups, size, size)``:
     a star field on a sky, accumulating group by group; the reference border
     holds no signal and is not coupled."""
-    import ipc_taichi
-    from ipc_taichi.datasets import star_field
-
     b = NIRCAM_BORDER
     rate = np.zeros((size, size))
     rate[b:-b, b:-b] = star_field(size - 2 * b, seed=seed) / ngroups
@@ -108,8 +109,6 @@ def measure_pipeline_ipc(size=PIPELINE_SIZE, nints=2, ngroups=4, alpha=0.0125, r
 
     from jwst.ipc import ipc_corr
     from stdatamodels.jwst.datamodels import IPCModel
-
-    import ipc_taichi
 
     truth, measured = _ramp(size, nints, ngroups, alpha, seed)
     b = NIRCAM_BORDER

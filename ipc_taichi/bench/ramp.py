@@ -21,6 +21,11 @@ import time
 
 import numpy as np
 
+import ipc_taichi
+
+from .. import iteration
+from ..datasets import star_field
+
 __all__ = ["measure_ramp", "ramp_frames", "RAMP_SIZE", "RAMP_GROUPS"]
 
 RAMP_SIZE = 2048
@@ -33,9 +38,6 @@ def ramp_frames(size, groups, law="donlon2018", seed=5):
     field (its full signal reached at the last group) plus a sky, each group's
     new charge drawn from a Poisson law, accumulated, and coupled with ``law``
     (in the running runtime's precision)."""
-    import ipc_taichi
-    from ipc_taichi.datasets import star_field
-
     rng = np.random.default_rng(seed)
     rate = star_field(size, seed=seed) / groups + SKY
     truth = np.cumsum(rng.poisson(rate, (groups, size, size)), axis=0, dtype=np.float64)
@@ -44,9 +46,6 @@ def ramp_frames(size, groups, law="donlon2018", seed=5):
 
 def _one_law(measured, truth, law, repeats):
     """The two rows (from scratch, warm start) of one law."""
-    import ipc_taichi
-    from ipc_taichi import iteration
-
     ipc_taichi.decouple(measured[:2, :64, :64], law=law, warm_start=True)  # JIT outside
     starts = (("from scratch", False), ("warm start", True))
     outs = {name: np.empty_like(measured) for name, _ in starts}
@@ -102,8 +101,6 @@ def measure_ramp(size=RAMP_SIZE, groups=RAMP_GROUPS, precision="f32",
         truth, in electrons), ``times_s``, ``within_tolerance`` and ``notes``.
         Taichi is left in ``precision``.
     """
-    import ipc_taichi
-
     info = ipc_taichi.init(precision=precision)
     rows = []
     for law in laws:

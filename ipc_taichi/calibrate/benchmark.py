@@ -8,6 +8,7 @@ import time
 import numpy as np
 
 from ..coupling import couple
+from .workflow import calibrate
 
 __all__ = ["measure_calibrate"]
 
@@ -66,8 +67,6 @@ def measure_calibrate(size=2048, groups=10, flat_size=512, flat_ints=8, flat_gro
         0.006 made both), ``chosen`` (the law form), ``brighter_fatter`` and
         ``nonlinear_ipc`` (detected: both False for these data).
     """
-    from .workflow import calibrate
-
     with tempfile.TemporaryDirectory() as tmp:
         dark = os.path.join(tmp, "dark.fits")
         _write(dark, _ramp(int(size), int(groups)))
