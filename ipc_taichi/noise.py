@@ -82,8 +82,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._linearise import rows_of_g
 from .errors import IPCInputError
+from .jacobian import rows_of_g
 from .model import CouplingModel
 
 __all__ = ["METHOD", "STAGES", "TOL", "NEIGHBOUR_OFFSETS", "Linearisation", "linearise",

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import ipc_taichi
-from ipc_taichi import _linearise, noise
+from ipc_taichi import jacobian, noise
 from ipc_taichi.errors import IPCInputError
 from ipc_taichi.geometry import Geometry
 from ipc_taichi.laws import TabulatedLaw, donlon2018
@@ -59,7 +59,7 @@ def test_jacobian_is_the_derivative_of_the_coupling_kernels(cpu, model):
     x = rng.uniform(0.0, 60000.0, (8, 9))
     mask = np.zeros(x.shape, bool)
     mask[2, 2] = mask[0, 6] = mask[4, 5] = True
-    jac = _linearise.jacobian(np.where(mask, 0.0, x), model, ~mask)
+    jac = jacobian.jacobian(np.where(mask, 0.0, x), model, ~mask)
     expected = _probed_jacobian(x, model, mask)
     assert np.abs(_dense(jac, x.shape) - expected).max() < 1e-7
 
@@ -74,7 +74,7 @@ def test_variance_matches_the_dense_inverse(model):
     v = rng.uniform(10.0, 1000.0, x.shape)
     v[2, 2] = np.nan                        # a flagged pixel's variance may be NaN
     valid = np.isfinite(x) & ~mask
-    g = np.linalg.inv(_dense(_linearise.jacobian(np.where(valid, x, 0.0), model, valid), x.shape))
+    g = np.linalg.inv(_dense(jacobian.jacobian(np.where(valid, x, 0.0), model, valid), x.shape))
     exact = (g ** 2 @ np.where(valid, v, 0.0).ravel()).reshape(x.shape)
     for reach, tol in ((1, 1e-3), (2, 1e-5)):
         got = noise.linearise(x, model, mask=mask, reach=reach).variance(v)
@@ -305,6 +305,6 @@ def test_bands_give_the_whole_frames_answer(monkeypatch):
     mask = np.zeros(x.shape, bool)
     mask[31:34, 10] = True
     whole = noise.linearise(x, "donlon2018", mask=mask)
-    monkeypatch.setattr(_linearise, "_BAND", 16)
+    monkeypatch.setattr(jacobian, "_BAND", 16)
     banded = noise.linearise(x, "donlon2018", mask=mask)
     assert np.abs(whole.stencil - banded.stencil).max() <= 2 * max(whole.bound, banded.bound)

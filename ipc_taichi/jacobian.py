@@ -1,7 +1,9 @@
-"""The linearised coupling behind :mod:`ipc_taichi.noise`: the Jacobian of the
-forward model as a stencil, and the rows of its inverse ``G = J^{-1}`` probed
-by a lattice colouring and truncated Neumann (Jacobi) solves. The method and
-its error bounds are described in :mod:`ipc_taichi.noise` and ``docs/noise.md``.
+"""The coupling's Jacobian and the rows of its inverse, behind :mod:`ipc_taichi.noise`.
+
+The Jacobian of the forward model is kept as a stencil; the rows of its inverse
+``G = J^{-1}`` are probed by a lattice colouring and truncated Neumann (Jacobi)
+solves. The method and its error bounds are described in :mod:`ipc_taichi.noise`
+and ``docs/noise.md``.
 """
 
 import numpy as np
