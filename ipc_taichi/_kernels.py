@@ -105,6 +105,10 @@ class KernelConfig:
     masked: bool
     precision: str  # "f64" | "f32"
     layout: str = "sweep"  # "sweep" (CPU) | "pixel" (CUDA)
+    # arrays passed flat (1-D, row-major) and indexed as row * width + column,
+    # as the host path does (Taichi's CPU code reloads a 2-D array's shape at
+    # every access); False: 2-D Taichi ndarrays, the device path
+    flat: bool = True
 
     @property
     def reach(self):
@@ -269,10 +273,71 @@ class StepPlan:
         return "row" in self.sources
 
 
+def make_larger():
+    """``larger(a, b)``: the larger of two values, as a compare and a select.
+    For the stopping-rule maxima of values that are never NaN it is
+    ``ti.max`` bit for bit (and NaN is ignored by both), without the NaN
+    handling of LLVM's ``maxnum`` that sits on the maxima's loop-carried
+    dependency chain (measured: that chain cost the sweep about 20 %)."""
+    import taichi as ti
+
+    @ti.func
+    def larger(a, b):
+        return ti.select(b > a, b, a)
+
+    return larger
+
+
 def _real(plan):
     import taichi as ti
 
     return ti.f64 if plan.config.precision == "f64" else ti.f32
+
+
+def _access_functions(plan):
+    """``(cell, put, ring_cell, ring_put)``: an array's value at row ``y``,
+    column ``x`` of a frame ``width`` columns wide (and its store), and the
+    sweep's ring rows (strip ``s``, slot ``kv``, frame row ``row``, column
+    ``x``). With :attr:`KernelConfig.flat` the arrays are 1-D, indexed
+    ``y * width + x``; else 2-D (4-D for the ring) and ``width`` is unused."""
+    import taichi as ti
+
+    flat, depth = plan.config.flat, plan.config.ring_depth
+    slots = max(1, len(plan.config.vertical))  # the workspace's ring has as many
+
+    @ti.func
+    def index(y, x, width):
+        return y * width + x
+
+    @ti.func
+    def cell(a: ti.template(), y, x, width):
+        if ti.static(flat):
+            return a[index(y, x, width)]
+        else:
+            return a[y, x]
+
+    @ti.func
+    def put(a: ti.template(), y, x, width, v):
+        if ti.static(flat):
+            a[index(y, x, width)] = v
+        else:
+            a[y, x] = v
+
+    @ti.func
+    def ring_cell(ring: ti.template(), s, kv: ti.template(), row, x, width):
+        if ti.static(flat):
+            return ring[index((s * slots + kv) * depth + row % depth, x, width)]
+        else:
+            return ring[s, kv, row % depth, x]
+
+    @ti.func
+    def ring_put(ring: ti.template(), s, kv: ti.template(), row, x, width, v):
+        if ti.static(flat):
+            ring[index((s * slots + kv) * depth + row % depth, x, width)] = v
+        else:
+            ring[s, kv, row % depth, x] = v
+
+    return cell, put, ring_cell, ring_put
 
 
 def _law_functions(plan):
@@ -281,7 +346,9 @@ def _law_functions(plan):
 
     config, real, n_coef = plan.config, _real(plan), plan.n_coef
     constant_law = config.law_kind == "constant"
-    alpha = make_alpha(config.law_kind, config.precision, fast_exp=config.layout == "sweep")
+    alpha = make_alpha(config.law_kind, config.precision, fast_exp=config.layout == "sweep",
+                       flat_table=config.flat)
+    cell = _access_functions(plan)[0]
 
     @ti.func
     def coefficients(p: ti.template(), w: ti.template()):
@@ -299,15 +366,16 @@ def _law_functions(plan):
 
     @ti.func
     def pair(src: ti.template(), ok: ti.template(), p: ti.template(), table: ti.template(),
-             coef: ti.template(), y, x, dy: ti.template(), dx: ti.template()):
-        """alpha of the pair (y, x) -- (y + dy, x + dx), padded coordinates."""
+             coef: ti.template(), pw, y, x, dy: ti.template(), dx: ti.template()):
+        """alpha of the pair (y, x) -- (y + dy, x + dx), padded coordinates
+        (``pw``: the padded width)."""
         a = ti.cast(0.0, real)
         if ti.static(constant_law):
             a = coef[n_coef - 1]  # what alpha() returns for this law, kept in a register
         else:
-            a = alpha(src[y, x], src[y + dy, x + dx], p, table)
+            a = alpha(cell(src, y, x, pw), cell(src, y + dy, x + dx, pw), p, table)
         if ti.static(config.uses_ok):
-            a *= ti.cast(ok[y, x] * ok[y + dy, x + dx], real)
+            a *= ti.cast(cell(ok, y, x, pw) * cell(ok, y + dy, x + dx, pw), real)
         return a
 
     return coefficients, pair
@@ -319,19 +387,19 @@ def _flow_functions(plan, pair):
     import taichi as ti
 
     offsets, sources, real, r = plan.config.offsets, plan.sources, _real(plan), plan.config.reach
-    depth = plan.config.ring_depth
+    cell, put, ring_cell, ring_put = _access_functions(plan)
 
     @ti.func
-    def pair_flow(flow, src: ti.template(), coef: ti.template(), y, x, sv, k: ti.template(),
-                  a_plus, a_minus):
+    def pair_flow(flow, src: ti.template(), coef: ti.template(), pw, y, x, sv,
+                  k: ti.template(), a_plus, a_minus):
         """``flow`` plus what pixel (y, x) gains through offset k: the neighbour
         at p + u sends by -u (weight w[k, 1]), p sends to it by +u (w[k, 0]);
         likewise with the neighbour at p - u."""
         dy, dx = ti.static(offsets[k])
         wp = coef[2 * k]  # weight of the move p -> p+u
         wm = coef[2 * k + 1]  # weight of the move p -> p-u
-        return (flow + a_plus * (wm * src[y + dy, x + dx] - wp * sv)
-                + a_minus * (wp * src[y - dy, x - dx] - wm * sv))
+        return (flow + a_plus * (wm * cell(src, y + dy, x + dx, pw) - wp * sv)
+                + a_minus * (wp * cell(src, y - dy, x - dx, pw) - wm * sv))
 
     @ti.func
     def shift_in(carry: ti.template(), at: ti.template(), n: ti.template(), a):
@@ -344,33 +412,33 @@ def _flow_functions(plan, pair):
 
     @ti.func
     def pixel_flow(src: ti.template(), ok: ti.template(), p: ti.template(),
-                   coef: ti.template(), table: ti.template(), ring: ti.template(), s, i, y, x,
-                   sv, carry: ti.template()):
+                   coef: ti.template(), table: ti.template(), ring: ti.template(), pw, s, i,
+                   y, x, sv, carry: ti.template()):
         """The coupling term at padded (y, x) (row ``i`` of the frame); the
         alphas it computes are carried for the pixels that reuse them."""
         flow = ti.cast(0.0, real)
         for k in ti.static(range(len(offsets))):
             dy, dx = ti.static(offsets[k])
-            a_plus = pair(src, ok, p, table, coef, y, x, dy, dx)
+            a_plus = pair(src, ok, p, table, coef, pw, y, x, dy, dx)
             a_minus = ti.cast(0.0, real)
             if ti.static(sources[k] == "row"):
                 a_minus = shift_in(carry, plan.carry_at[k], dx, a_plus)
             elif ti.static(sources[k] == "ring"):
                 kv = ti.static(plan.ring_index[k])
-                a_minus = ring[s, kv, (i - dy + r) % depth, x - dx]
-                ring[s, kv, (i + r) % depth, x] = a_plus
+                a_minus = ring_cell(ring, s, kv, i - dy + r, x - dx, pw)
+                ring_put(ring, s, kv, i + r, x, pw, a_plus)
             elif ti.static(sources[k] == "column"):
                 a_minus = shift_in(carry, plan.vcarry_at[k], dy, a_plus)
             else:
-                a_minus = pair(src, ok, p, table, coef, y - dy, x - dx, dy, dx)
-            flow = pair_flow(flow, src, coef, y, x, sv, k, a_plus, a_minus)
+                a_minus = pair(src, ok, p, table, coef, pw, y - dy, x - dx, dy, dx)
+            flow = pair_flow(flow, src, coef, pw, y, x, sv, k, a_plus, a_minus)
         return flow
 
     @ti.func
-    def emit(base: ti.template(), dst: ti.template(), sign, i, j, flow):
+    def emit(base: ti.template(), dst: ti.template(), sign, pw, i, j, flow):
         """Write ``base + sign * flow`` at frame pixel (i, j); returns it."""
-        v = base[i, j] + sign * flow
-        dst[i + r, j + r] = v
+        v = cell(base, i, j, pw - 2 * r) + sign * flow
+        put(dst, i + r, j + r, pw, v)
         return v
 
     return pixel_flow, emit
@@ -383,7 +451,7 @@ def _start_functions(plan, pair):
     import taichi as ti
 
     offsets, vertical, r = plan.config.offsets, plan.config.vertical, plan.config.reach
-    depth = plan.config.ring_depth
+    ring_put = _access_functions(plan)[3]
 
     @ti.func
     def ring_prologue(src: ti.template(), ok: ti.template(), p: ti.template(),
@@ -393,10 +461,9 @@ def _start_functions(plan, pair):
         for kv in ti.static(range(len(vertical))):
             dy, dx = ti.static(offsets[vertical[kv]])
             for row in range(i0 - dy, i0):
-                slot = (row + r) % depth
                 for c in range(plan.prologue_lo[kv], wd + plan.right_extra[kv]):
-                    ring[s, kv, slot, c + r] = pair(src, ok, p, table, coef, row + r, c + r,
-                                                    dy, dx)
+                    ring_put(ring, s, kv, row + r, c + r, wd + 2 * r,
+                             pair(src, ok, p, table, coef, wd + 2 * r, row + r, c + r, dy, dx))
 
     @ti.func
     def ring_row_ends(src: ti.template(), ok: ti.template(), p: ti.template(),
@@ -404,45 +471,75 @@ def _start_functions(plan, pair):
                       wd):
         """Sweep: row i's pairs starting beyond its ends that later rows read back."""
         y = i + r
+        pw = wd + 2 * r
         for kv in ti.static(range(len(vertical))):
             dy, dx = ti.static(offsets[vertical[kv]])
-            slot = (i + r) % depth
             for c in ti.static(plan.left_extra[kv]):
-                ring[s, kv, slot, c + r] = pair(src, ok, p, table, coef, y, c + r, dy, dx)
+                ring_put(ring, s, kv, y, c + r, pw, pair(src, ok, p, table, coef, pw, y, c + r,
+                                                        dy, dx))
             for c in range(wd, wd + plan.right_extra[kv]):
-                ring[s, kv, slot, c + r] = pair(src, ok, p, table, coef, y, c + r, dy, dx)
+                ring_put(ring, s, kv, y, c + r, pw, pair(src, ok, p, table, coef, pw, y, c + r,
+                                                        dy, dx))
 
     @ti.func
     def row_start(src: ti.template(), ok: ti.template(), p: ti.template(),
-                  table: ti.template(), coef: ti.template(), carry: ti.template(), y):
+                  table: ti.template(), coef: ti.template(), carry: ti.template(), pw, y):
         """Sweep: the horizontal pairs left of column 0, into the row registers."""
         for k in ti.static(range(len(offsets))):
             dy, dx = ti.static(offsets[k])
             if ti.static(plan.sources[k] == "row"):
                 for m in ti.static(range(dx)):
-                    carry[plan.carry_at[k] + m] = pair(src, ok, p, table, coef, y,
+                    carry[plan.carry_at[k] + m] = pair(src, ok, p, table, coef, pw, y,
                                                        r - dx + m, 0, dx)
 
     @ti.func
     def column_start(src: ti.template(), ok: ti.template(), p: ti.template(),
-                     table: ti.template(), coef: ti.template(), carry: ti.template(), i0, x):
+                     table: ti.template(), coef: ti.template(), carry: ti.template(), pw, i0,
+                     x):
         """Pixel: the vertical pairs (dy, 0) that end in the run's first dy rows."""
         for k in ti.static(range(len(offsets))):
             dy, dx = ti.static(offsets[k])
             if ti.static(plan.sources[k] == "column"):
                 for m in ti.static(range(dy)):
-                    carry[plan.vcarry_at[k] + m] = pair(src, ok, p, table, coef,
+                    carry[plan.vcarry_at[k] + m] = pair(src, ok, p, table, coef, pw,
                                                         i0 + r - dy + m, x, dy, 0)
 
     return ring_prologue, ring_row_ends, row_start, column_start
 
 
-def _arg_types(real):
-    """The step kernels' argument types: (frame, vector, mask, scratch)."""
+def _arg_types(plan):
+    """The step kernels' argument types: (frame, vector, mask, scratch, small):
+    frames, the ``ok`` mask, the ring and the law's table 1-D with
+    :attr:`KernelConfig.flat`; ``w`` and ``part`` (small) always 2-D."""
     import taichi as ti
 
-    return (ti.types.ndarray(dtype=real, ndim=2), ti.types.ndarray(dtype=real, ndim=1),
-            ti.types.ndarray(dtype=ti.u8, ndim=2), ti.types.ndarray(dtype=real, ndim=4))
+    real, flat = _real(plan), plan.config.flat
+    small = ti.types.ndarray(dtype=real, ndim=2)
+    return (ti.types.ndarray(dtype=real, ndim=1 if flat else 2),
+            ti.types.ndarray(dtype=real, ndim=1), ti.types.ndarray(dtype=ti.u8,
+                                                                   ndim=1 if flat else 2),
+            ti.types.ndarray(dtype=real, ndim=1 if flat else 4), small)
+
+
+def _frame_size(plan):
+    """``frame_size(src, base, width)``: the unpadded ``(height, width)``."""
+    import taichi as ti
+
+    flat, r = plan.config.flat, plan.config.reach
+
+    @ti.func
+    def frame_size(src: ti.template(), base: ti.template(), width):
+        h = 0
+        wd = 0
+        if ti.static(flat):
+            h = base.shape[0] // width
+            wd = width
+        else:
+            h = src.shape[0] - 2 * r
+            wd = src.shape[1] - 2 * r
+        return ti.Vector([h, wd])
+
+    return frame_size
 
 
 def _sweep_kernel(plan, coefficients, pixel_flow, emit, starts):
@@ -451,7 +548,10 @@ def _sweep_kernel(plan, coefficients, pixel_flow, emit, starts):
 
     real, r = _real(plan), plan.config.reach
     ring_prologue, ring_row_ends, row_start, _ = starts
-    frame, vector, mask, scratch = _arg_types(real)
+    frame, vector, mask, scratch, small = _arg_types(plan)
+    cell = _access_functions(plan)[0]
+    frame_size = _frame_size(plan)
+    larger = make_larger()
 
     @ti.func
     def strip_rows(src: ti.template(), base: ti.template(), dst: ti.template(),
@@ -463,33 +563,36 @@ def _sweep_kernel(plan, coefficients, pixel_flow, emit, starts):
         smax = ti.cast(0.0, real)
         if ti.static(plan.rings):
             ring_prologue(src, ok, p, table, coef, ring, s, i0, wd)
+        pw = wd + 2 * r
         for i in range(i0, i1):
             y = i + r
             if ti.static(plan.rings):
                 ring_row_ends(src, ok, p, table, coef, ring, s, i, wd)
             carry = ti.Vector([0.0] * plan.carry_size, dt=real)
             if ti.static(plan.carries_row):
-                row_start(src, ok, p, table, coef, carry, y)
+                row_start(src, ok, p, table, coef, carry, pw, y)
             for j in range(wd):
                 x = j + r
-                sv = src[y, x]
-                flow = pixel_flow(src, ok, p, coef, table, ring, s, i, y, x, sv, carry)
-                v = emit(base, dst, sign, i, j, flow)
-                dmax = ti.max(dmax, ti.abs(v - sv))
-                smax = ti.max(smax, ti.abs(v))
+                sv = cell(src, y, x, pw)
+                flow = pixel_flow(src, ok, p, coef, table, ring, pw, s, i, y, x, sv, carry)
+                v = emit(base, dst, sign, pw, i, j, flow)
+                dmax = larger(dmax, ti.abs(v - sv))
+                smax = larger(smax, ti.abs(v))
         part[s, 0] = dmax
         part[s, 1] = smax
 
     @ti.kernel
-    def step_sweep(src: frame, base: frame, dst: frame, ok: mask, p: vector, w: frame,
-                   table: frame, sign: real, part: frame, ring: scratch, strip: ti.i32):
-        h = src.shape[0] - 2 * r
-        wd = src.shape[1] - 2 * r
+    def step_sweep(src: frame, base: frame, dst: frame, ok: mask, p: vector, w: small,
+                   table: frame, sign: real, part: small, ring: scratch, strip: ti.i32,
+                   width: ti.i32):
+        size = frame_size(src, base, width)
+        h = size[0]
+        wd = size[1]
         # One strip per task. Taichi 1.7's CPU backend hands out a parallel
         # range in chunks of up to 512 iterations whatever block_dim says, so a
         # loop over a few dozen strips would run on one thread: spread the
         # strips 512 iterations apart and let only the first of each do the work.
-        for task in range(ring.shape[0] * SPREAD):
+        for task in range((h + strip - 1) // strip * SPREAD):
             if task % SPREAD == 0:
                 s = task // SPREAD
                 coef = coefficients(p, w)
@@ -506,14 +609,20 @@ def _pixel_kernel(plan, coefficients, pixel_flow, emit, starts):
 
     real, r = _real(plan), plan.config.reach
     column_start = starts[3]
-    frame, vector, mask, scratch = _arg_types(real)
+    frame, vector, mask, scratch, small = _arg_types(plan)
+    cell = _access_functions(plan)[0]
+    frame_size = _frame_size(plan)
+    larger = make_larger()
     shrink, passes = make_tree_reduction()
 
     @ti.kernel
-    def step_pixel(src: frame, base: frame, dst: frame, ok: mask, p: vector, w: frame,
-                   table: frame, sign: real, part: frame, ring: scratch, strip: ti.i32):
-        h = src.shape[0] - 2 * r
-        wd = src.shape[1] - 2 * r
+    def step_pixel(src: frame, base: frame, dst: frame, ok: mask, p: vector, w: small,
+                   table: frame, sign: real, part: small, ring: scratch, strip: ti.i32,
+                   width: ti.i32):
+        size = frame_size(src, base, width)
+        h = size[0]
+        wd = size[1]
+        pw = wd + 2 * r
         runs = (h + strip - 1) // strip
         n0 = runs * wd
         n1 = shrink(n0)
@@ -529,14 +638,14 @@ def _pixel_kernel(plan, coefficients, pixel_flow, emit, starts):
             dmax = ti.cast(0.0, real)
             smax = ti.cast(0.0, real)
             carry = ti.Vector([0.0] * plan.carry_size, dt=real)
-            column_start(src, ok, p, table, coef, carry, i0, x)
+            column_start(src, ok, p, table, coef, carry, pw, i0, x)
             for i in range(i0, i1):
                 y = i + r
-                sv = src[y, x]
-                flow = pixel_flow(src, ok, p, coef, table, ring, 0, i, y, x, sv, carry)
-                v = emit(base, dst, sign, i, j, flow)
-                dmax = ti.max(dmax, ti.abs(v - sv))
-                smax = ti.max(smax, ti.abs(v))
+                sv = cell(src, y, x, pw)
+                flow = pixel_flow(src, ok, p, coef, table, ring, pw, 0, i, y, x, sv, carry)
+                v = emit(base, dst, sign, pw, i, j, flow)
+                dmax = larger(dmax, ti.abs(v - sv))
+                smax = larger(smax, ti.abs(v))
             part[b * wd + j, 0] = dmax
             part[b * wd + j, 1] = smax
         passes(part, n0, n1, n2, n3, n4, n5)
