@@ -260,9 +260,15 @@ class StepPlan:
             carry_size=n_carry if config.layout == "sweep" else n_vcarry)
 
     @property
+    def law_at(self):
+        """Where the law's 5 kernel parameters start among the coefficients."""
+        return 2 * len(self.config.offsets)
+
+    @property
     def n_coef(self):
-        """Registers of :func:`coefficients`: two weights per offset, then alpha."""
-        return 2 * len(self.config.offsets) + 1
+        """Registers of ``coefficients``: two weights per offset, then the law's
+        5 parameters (a constant law's alpha last)."""
+        return self.law_at + 5
 
     @property
     def rings(self):
@@ -341,10 +347,11 @@ def _access_functions(plan):
 
 
 def _law_functions(plan):
-    """``(coefficients, pair)``: the weights read into registers, one pair's alpha."""
+    """``(coefficients, pair, pair_of)``: the weights and the law read into
+    registers; one pair's alpha (``pair_of``: given the first pixel's signal)."""
     import taichi as ti
 
-    config, real, n_coef = plan.config, _real(plan), plan.n_coef
+    config, real, n_coef, law_at = plan.config, _real(plan), plan.n_coef, plan.law_at
     constant_law = config.law_kind == "constant"
     alpha = make_alpha(config.law_kind, config.precision, fast_exp=config.layout == "sweep",
                        flat_table=config.flat)
@@ -353,35 +360,47 @@ def _law_functions(plan):
     @ti.func
     def coefficients(p: ti.template(), w: ti.template()):
         """The geometry's weights ``(w[k, 0], w[k, 1])`` for each offset k and,
-        last, a constant law's alpha, read once per thread into registers
+        last, the law's parameters ``p``, read once per thread into registers
         (read from memory at every pixel, the compiler cannot keep them there:
         ``dst`` might alias them)."""
         coef = ti.Vector([0.0] * n_coef, dt=real)
         for k in ti.static(range(len(config.offsets))):
             coef[2 * k] = w[k, 0]
             coef[2 * k + 1] = w[k, 1]
-        if ti.static(constant_law):
-            coef[n_coef - 1] = p[4]
+        for m in ti.static(range(5)):
+            coef[law_at + m] = p[m]
         return coef
 
     @ti.func
-    def pair(src: ti.template(), ok: ti.template(), p: ti.template(), table: ti.template(),
-             coef: ti.template(), pw, y, x, dy: ti.template(), dx: ti.template()):
+    def law(coef: ti.template()):
+        """The law's parameters among the coefficients, as ``alpha`` reads them."""
+        return ti.Vector([coef[law_at + m] for m in ti.static(range(5))], dt=real)
+
+    @ti.func
+    def pair_of(src: ti.template(), ok: ti.template(), table: ti.template(),
+                coef: ti.template(), pw, sv, y, x, dy: ti.template(), dx: ti.template()):
         """alpha of the pair (y, x) -- (y + dy, x + dx), padded coordinates
-        (``pw``: the padded width)."""
+        (``pw``: the padded width), ``sv`` the signal at (y, x)."""
         a = ti.cast(0.0, real)
         if ti.static(constant_law):
-            a = coef[n_coef - 1]  # what alpha() returns for this law, kept in a register
+            a = coef[law_at + 4]  # what alpha() returns for this law, kept in a register
         else:
-            a = alpha(cell(src, y, x, pw), cell(src, y + dy, x + dx, pw), p, table)
+            a = alpha(sv, cell(src, y + dy, x + dx, pw), law(coef), table)
         if ti.static(config.uses_ok):
             a *= ti.cast(cell(ok, y, x, pw) * cell(ok, y + dy, x + dx, pw), real)
         return a
 
-    return coefficients, pair
+    @ti.func
+    def pair(src: ti.template(), ok: ti.template(), p: ti.template(), table: ti.template(),
+             coef: ti.template(), pw, y, x, dy: ti.template(), dx: ti.template()):
+        """alpha of the pair (y, x) -- (y + dy, x + dx); ``p`` is unused (the
+        law's parameters are among ``coef``)."""
+        return pair_of(src, ok, table, coef, pw, cell(src, y, x, pw), y, x, dy, dx)
+
+    return coefficients, pair, pair_of
 
 
-def _flow_functions(plan, pair):
+def _flow_functions(plan, pair, pair_of):
     """``(pixel_flow, emit)``: one pixel's coupling term (its alphas taken
     from where :func:`alpha_sources` says), and the new value written."""
     import taichi as ti
@@ -419,7 +438,7 @@ def _flow_functions(plan, pair):
         flow = ti.cast(0.0, real)
         for k in ti.static(range(len(offsets))):
             dy, dx = ti.static(offsets[k])
-            a_plus = pair(src, ok, p, table, coef, pw, y, x, dy, dx)
+            a_plus = pair_of(src, ok, table, coef, pw, sv, y, x, dy, dx)
             a_minus = ti.cast(0.0, real)
             if ti.static(sources[k] == "row"):
                 a_minus = shift_in(carry, plan.carry_at[k], dx, a_plus)
@@ -665,8 +684,8 @@ def get_step_kernel(config):
     differ only in their loops and in what they carry.
     """
     plan = StepPlan.of(config)
-    coefficients, pair = _law_functions(plan)
-    pixel_flow, emit = _flow_functions(plan, pair)
+    coefficients, pair, pair_of = _law_functions(plan)
+    pixel_flow, emit = _flow_functions(plan, pair, pair_of)
     starts = _start_functions(plan, pair)
     build = _sweep_kernel if config.layout == "sweep" else _pixel_kernel
     return build(plan, coefficients, pixel_flow, emit, starts)
