@@ -123,11 +123,15 @@ def _median(fn, repeats, before=None):
     return statistics.median(times), times
 
 
-def _time_decouple(groups, truth, law, info, repeats, warm_start=False):
+def _time_decouple(groups, truth, law, info, repeats, warm_start=False, step=None):
     """Median time of :func:`ipc_taichi.decouple` of ``groups`` (f32 ramp
     groups, one stack) with ``law`` in the running precision; a row dict
     (``median_s``, ``times_s``, ``max_error`` over the science pixels,
-    ``iterations``: the distinct counts, ``total_iterations``)."""
+    ``iterations``: the distinct counts, ``total_iterations``). With ``step``
+    (a callable returning the JWST step's compute time), the step is timed
+    before each run, interleaved, and ``vs_jwst_interleaved`` is the ratio of
+    the two medians: on a machine shared with other work both see the same
+    load."""
     import ipc_taichi
 
     b = NIRCAM_BORDER
@@ -140,15 +144,20 @@ def _time_decouple(groups, truth, law, info, repeats, warm_start=False):
     def ours():
         infos[:] = ipc_taichi.decouple(groups, out=out, full_output=True, **run)[1]
 
-    median, times = _median(ours, repeats)
-    return {"median_s": median, "times_s": times,
+    steps = []
+    median, times = _median(ours, repeats, None if step is None else
+                            lambda: steps.append(step()))
+    extra = {} if step is None else {"jwst_times_s": steps,
+                                     "vs_jwst_interleaved": median / statistics.median(steps)}
+    return {**extra, "median_s": median, "times_s": times,
             "max_error": float(np.abs(out - truth)[science].max()),
             "iterations": sorted({i.iterations for i in infos}),
             "total_iterations": sum(i.iterations for i in infos)}
 
 
-def _law_rows(size, nints, ngroups, alpha, seed, repeats, jwst_s):
-    """Issue 28's rows in f32 (see the module docstring), each with ``vs_jwst``."""
+def _law_rows(size, nints, ngroups, alpha, seed, repeats, step, jwst_s):
+    """Issue 28's rows in f32 (see the module docstring), each with ``vs_jwst``
+    (against the step's first timing, ``jwst_s``) and ``vs_jwst_interleaved``."""
     import ipc_taichi
 
     info = ipc_taichi.init(precision="f32")
@@ -159,7 +168,7 @@ def _law_rows(size, nints, ngroups, alpha, seed, repeats, jwst_s):
         groups = measured.astype(np.float32)
         for warm in ((True,) if law is None else (False, True)):
             row = _time_decouple(groups, truth, law or f"constant:{alpha}", info, repeats,
-                                 warm_start=warm)
+                                 warm_start=warm, step=step)
             row.update(row=f"decouple, {name} ({info.arch} f32, "
                            f"{'warm start' if warm else 'from scratch'})",
                        law=name, warm_start=warm, vs_jwst=row["median_s"] / jwst_s)
@@ -228,6 +237,12 @@ def measure_pipeline_ipc(size=PIPELINE_SIZE, nints=2, ngroups=4, alpha=0.0125, r
     def reload():
         model.data = ramp32.copy()
 
+    def step():
+        reload()
+        t0 = time.perf_counter()
+        ipc_corr.ipc_correction(model, ipc_model)
+        return time.perf_counter() - t0
+
     logging.getLogger("jwst").setLevel(logging.WARNING)
     jwst_s, jwst_times = _median(lambda: ipc_corr.ipc_correction(model, ipc_model), repeats,
                                  reload)
@@ -241,11 +256,11 @@ def measure_pipeline_ipc(size=PIPELINE_SIZE, nints=2, ngroups=4, alpha=0.0125, r
              "times_s": jwst_times, "max_error": jwst_err}]
     for precision in precisions:
         info = ipc_taichi.init(precision=precision)
-        row = _time_decouple(groups, truth, law, info, repeats)
+        row = _time_decouple(groups, truth, law, info, repeats, step=step)
         row.update(row=f"decouple, constant law ({info.arch} {info.precision})",
                    vs_jwst=row["median_s"] / jwst_s)
         rows.append(row)
-    law_rows = _law_rows(size, nints, ngroups, alpha, seed, repeats, jwst_s) if laws else []
+    law_rows = _law_rows(size, nints, ngroups, alpha, seed, repeats, step, jwst_s) if laws else []
     floor = streaming_floor((size, size), np.float32)
     general = _general(general_size or 2 * size, repeats) if laws else None
     return {"size": size, "nints": nints, "ngroups": ngroups, "alpha": alpha,
