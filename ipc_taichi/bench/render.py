@@ -178,12 +178,14 @@ def _floor_text(results):
                    f"{mem_ms:.3f} ms + compute {cmp_ms:.3f} ms per iteration (the `pixel` "
                    f"layout evaluates 4 alphas per pixel, about {h['pixel_layout_flops']} "
                    f"flops), i.e. about {5 * max(mem_ms, cmp_ms):.1f} ms for 5 iterations.")
-    out += ["", "How close each path gets (largest size, wall time per pixel and iteration):", ""]
+    out += ["", "How close each path gets (largest size, wall time per pixel and iteration; the "
+                "streaming floor: the time to stream one pixel's bytes, measured above):", ""]
     for r in rows:
         if r["size"] == max(x["size"] for x in rows):
             per = r["median_s"] / (r["iterations"] * r["size"] ** 2) * 1e9
             prec = "f32" if r["config"].endswith("f32") else "f64"
-            ratio = (f", {per / bound[prec]:.2f}x the cost of its alphas alone"
+            ratio = (f", {per / bound[prec]:.2f}x the cost of its alphas alone, "
+                     f"{per / measured[f'stream_ns_{prec}']:.1f}x the streaming floor"
                      if r["config"].startswith("taichi-cpu") and prec in bound else "")
             out.append(f"- {r['config']} {r['kind']} {r['size']}: {per:.1f} ns{ratio}.")
     out += ["", "See docs/performance.md for the discussion."]
