@@ -72,7 +72,10 @@ Two loop layouts, chosen at compile time (``KernelConfig.layout``):
 Compile-time (``ti.static``) choices form a frozen, hashable config
 (:class:`KernelConfig`); :class:`StepPlan` adds what follows from it (where
 each carried alpha lives), and :func:`get_step_kernel` composes a layout's
-kernel from small named device functions built on that plan. Law
+kernel from small named device functions built on that plan
+(:mod:`ipc_taichi._stepparts`). On the host the arrays are passed flat
+(``KernelConfig.flat``): Taichi's CPU code reloads a 2-D array's shape and
+data pointer at every access, which cost the sweep 1.3-1.5x. Law
 coefficients and geometry weights are run-time ndarray arguments, so changing
 a number never recompiles; frame sizes, the border width and the strip height
 are run-time arguments too.
@@ -84,6 +87,16 @@ from dataclasses import dataclass
 from . import runtime
 from ._alpha import kernel_law_kind, make_alpha, make_exp
 from ._frames import MAX_FINITE, FrameKernels, get_frame_kernels
+from ._stepparts import (
+    access_functions,
+    arg_types,
+    flow_functions,
+    law_functions,
+    make_frame_size,
+    make_larger,
+    real_type,
+    start_functions,
+)
 
 __all__ = ["KernelConfig", "StepPlan", "alpha_sources", "get_step_kernel", "get_frame_kernels",
            "get_reduce_kernel", "LAYOUTS", "partials_count", "tree_rows", "FAN_IN",
@@ -279,297 +292,15 @@ class StepPlan:
         return "row" in self.sources
 
 
-def make_larger():
-    """``larger(a, b)``: the larger of two values, as a compare and a select.
-    For the stopping-rule maxima of values that are never NaN it is
-    ``ti.max`` bit for bit (and NaN is ignored by both), without the NaN
-    handling of LLVM's ``maxnum`` that sits on the maxima's loop-carried
-    dependency chain (measured: that chain cost the sweep about 20 %)."""
-    import taichi as ti
-
-    @ti.func
-    def larger(a, b):
-        return ti.select(b > a, b, a)
-
-    return larger
-
-
-def _real(plan):
-    import taichi as ti
-
-    return ti.f64 if plan.config.precision == "f64" else ti.f32
-
-
-def _access_functions(plan):
-    """``(cell, put, ring_cell, ring_put)``: an array's value at row ``y``,
-    column ``x`` of a frame ``width`` columns wide (and its store), and the
-    sweep's ring rows (strip ``s``, slot ``kv``, frame row ``row``, column
-    ``x``). With :attr:`KernelConfig.flat` the arrays are 1-D, indexed
-    ``y * width + x``; else 2-D (4-D for the ring) and ``width`` is unused."""
-    import taichi as ti
-
-    flat, depth = plan.config.flat, plan.config.ring_depth
-    slots = max(1, len(plan.config.vertical))  # the workspace's ring has as many
-
-    @ti.func
-    def index(y, x, width):
-        return y * width + x
-
-    @ti.func
-    def cell(a: ti.template(), y, x, width):
-        if ti.static(flat):
-            return a[index(y, x, width)]
-        else:
-            return a[y, x]
-
-    @ti.func
-    def put(a: ti.template(), y, x, width, v):
-        if ti.static(flat):
-            a[index(y, x, width)] = v
-        else:
-            a[y, x] = v
-
-    @ti.func
-    def ring_cell(ring: ti.template(), s, kv: ti.template(), row, x, width):
-        if ti.static(flat):
-            return ring[index((s * slots + kv) * depth + row % depth, x, width)]
-        else:
-            return ring[s, kv, row % depth, x]
-
-    @ti.func
-    def ring_put(ring: ti.template(), s, kv: ti.template(), row, x, width, v):
-        if ti.static(flat):
-            ring[index((s * slots + kv) * depth + row % depth, x, width)] = v
-        else:
-            ring[s, kv, row % depth, x] = v
-
-    return cell, put, ring_cell, ring_put
-
-
-def _law_functions(plan):
-    """``(coefficients, pair, pair_of)``: the weights and the law read into
-    registers; one pair's alpha (``pair_of``: given the first pixel's signal)."""
-    import taichi as ti
-
-    config, real, n_coef, law_at = plan.config, _real(plan), plan.n_coef, plan.law_at
-    constant_law = config.law_kind == "constant"
-    alpha = make_alpha(config.law_kind, config.precision, fast_exp=config.layout == "sweep",
-                       flat_table=config.flat)
-    cell = _access_functions(plan)[0]
-
-    @ti.func
-    def coefficients(p: ti.template(), w: ti.template()):
-        """The geometry's weights ``(w[k, 0], w[k, 1])`` for each offset k and,
-        last, the law's parameters ``p``, read once per thread into registers
-        (read from memory at every pixel, the compiler cannot keep them there:
-        ``dst`` might alias them)."""
-        coef = ti.Vector([0.0] * n_coef, dt=real)
-        for k in ti.static(range(len(config.offsets))):
-            coef[2 * k] = w[k, 0]
-            coef[2 * k + 1] = w[k, 1]
-        for m in ti.static(range(5)):
-            coef[law_at + m] = p[m]
-        return coef
-
-    @ti.func
-    def law(coef: ti.template()):
-        """The law's parameters among the coefficients, as ``alpha`` reads them."""
-        return ti.Vector([coef[law_at + m] for m in ti.static(range(5))], dt=real)
-
-    @ti.func
-    def pair_of(src: ti.template(), ok: ti.template(), table: ti.template(),
-                coef: ti.template(), pw, sv, y, x, dy: ti.template(), dx: ti.template()):
-        """alpha of the pair (y, x) -- (y + dy, x + dx), padded coordinates
-        (``pw``: the padded width), ``sv`` the signal at (y, x)."""
-        a = ti.cast(0.0, real)
-        if ti.static(constant_law):
-            a = coef[law_at + 4]  # what alpha() returns for this law, kept in a register
-        else:
-            a = alpha(sv, cell(src, y + dy, x + dx, pw), law(coef), table)
-        if ti.static(config.uses_ok):
-            a *= ti.cast(cell(ok, y, x, pw) * cell(ok, y + dy, x + dx, pw), real)
-        return a
-
-    @ti.func
-    def pair(src: ti.template(), ok: ti.template(), p: ti.template(), table: ti.template(),
-             coef: ti.template(), pw, y, x, dy: ti.template(), dx: ti.template()):
-        """alpha of the pair (y, x) -- (y + dy, x + dx); ``p`` is unused (the
-        law's parameters are among ``coef``)."""
-        return pair_of(src, ok, table, coef, pw, cell(src, y, x, pw), y, x, dy, dx)
-
-    return coefficients, pair, pair_of
-
-
-def _flow_functions(plan, pair, pair_of):
-    """``(pixel_flow, emit)``: one pixel's coupling term (its alphas taken
-    from where :func:`alpha_sources` says), and the new value written."""
-    import taichi as ti
-
-    offsets, sources, real, r = plan.config.offsets, plan.sources, _real(plan), plan.config.reach
-    cell, put, ring_cell, ring_put = _access_functions(plan)
-
-    @ti.func
-    def pair_flow(flow, src: ti.template(), coef: ti.template(), pw, y, x, sv,
-                  k: ti.template(), a_plus, a_minus):
-        """``flow`` plus what pixel (y, x) gains through offset k: the neighbour
-        at p + u sends by -u (weight w[k, 1]), p sends to it by +u (w[k, 0]);
-        likewise with the neighbour at p - u."""
-        dy, dx = ti.static(offsets[k])
-        wp = coef[2 * k]  # weight of the move p -> p+u
-        wm = coef[2 * k + 1]  # weight of the move p -> p-u
-        return (flow + a_plus * (wm * cell(src, y + dy, x + dx, pw) - wp * sv)
-                + a_minus * (wp * cell(src, y - dy, x - dx, pw) - wm * sv))
-
-    @ti.func
-    def shift_in(carry: ti.template(), at: ti.template(), n: ti.template(), a):
-        """Take the oldest of ``n`` carried alphas out, put ``a`` in; returns it."""
-        old = carry[at]
-        for m in ti.static(range(n - 1)):
-            carry[at + m] = carry[at + m + 1]
-        carry[at + n - 1] = a
-        return old
-
-    @ti.func
-    def pixel_flow(src: ti.template(), ok: ti.template(), p: ti.template(),
-                   coef: ti.template(), table: ti.template(), ring: ti.template(), pw, s, i,
-                   y, x, sv, carry: ti.template()):
-        """The coupling term at padded (y, x) (row ``i`` of the frame); the
-        alphas it computes are carried for the pixels that reuse them."""
-        flow = ti.cast(0.0, real)
-        for k in ti.static(range(len(offsets))):
-            dy, dx = ti.static(offsets[k])
-            a_plus = pair_of(src, ok, table, coef, pw, sv, y, x, dy, dx)
-            a_minus = ti.cast(0.0, real)
-            if ti.static(sources[k] == "row"):
-                a_minus = shift_in(carry, plan.carry_at[k], dx, a_plus)
-            elif ti.static(sources[k] == "ring"):
-                kv = ti.static(plan.ring_index[k])
-                a_minus = ring_cell(ring, s, kv, i - dy + r, x - dx, pw)
-                ring_put(ring, s, kv, i + r, x, pw, a_plus)
-            elif ti.static(sources[k] == "column"):
-                a_minus = shift_in(carry, plan.vcarry_at[k], dy, a_plus)
-            else:
-                a_minus = pair(src, ok, p, table, coef, pw, y - dy, x - dx, dy, dx)
-            flow = pair_flow(flow, src, coef, pw, y, x, sv, k, a_plus, a_minus)
-        return flow
-
-    @ti.func
-    def emit(base: ti.template(), dst: ti.template(), sign, pw, i, j, flow):
-        """Write ``base + sign * flow`` at frame pixel (i, j); returns it."""
-        v = cell(base, i, j, pw - 2 * r) + sign * flow
-        put(dst, i + r, j + r, pw, v)
-        return v
-
-    return pixel_flow, emit
-
-
-def _start_functions(plan, pair):
-    """The alphas of pairs that start before a strip, row or column run and
-    that its pixels read back: ``(ring_prologue, ring_row_ends, row_start,
-    column_start)``."""
-    import taichi as ti
-
-    offsets, vertical, r = plan.config.offsets, plan.config.vertical, plan.config.reach
-    ring_put = _access_functions(plan)[3]
-
-    @ti.func
-    def ring_prologue(src: ti.template(), ok: ti.template(), p: ti.template(),
-                      table: ti.template(), coef: ti.template(), ring: ti.template(), s, i0,
-                      wd):
-        """Sweep: the pairs that start in the dy rows above the strip."""
-        for kv in ti.static(range(len(vertical))):
-            dy, dx = ti.static(offsets[vertical[kv]])
-            for row in range(i0 - dy, i0):
-                for c in range(plan.prologue_lo[kv], wd + plan.right_extra[kv]):
-                    ring_put(ring, s, kv, row + r, c + r, wd + 2 * r,
-                             pair(src, ok, p, table, coef, wd + 2 * r, row + r, c + r, dy, dx))
-
-    @ti.func
-    def ring_row_ends(src: ti.template(), ok: ti.template(), p: ti.template(),
-                      table: ti.template(), coef: ti.template(), ring: ti.template(), s, i,
-                      wd):
-        """Sweep: row i's pairs starting beyond its ends that later rows read back."""
-        y = i + r
-        pw = wd + 2 * r
-        for kv in ti.static(range(len(vertical))):
-            dy, dx = ti.static(offsets[vertical[kv]])
-            for c in ti.static(plan.left_extra[kv]):
-                ring_put(ring, s, kv, y, c + r, pw, pair(src, ok, p, table, coef, pw, y, c + r,
-                                                        dy, dx))
-            for c in range(wd, wd + plan.right_extra[kv]):
-                ring_put(ring, s, kv, y, c + r, pw, pair(src, ok, p, table, coef, pw, y, c + r,
-                                                        dy, dx))
-
-    @ti.func
-    def row_start(src: ti.template(), ok: ti.template(), p: ti.template(),
-                  table: ti.template(), coef: ti.template(), carry: ti.template(), pw, y):
-        """Sweep: the horizontal pairs left of column 0, into the row registers."""
-        for k in ti.static(range(len(offsets))):
-            dy, dx = ti.static(offsets[k])
-            if ti.static(plan.sources[k] == "row"):
-                for m in ti.static(range(dx)):
-                    carry[plan.carry_at[k] + m] = pair(src, ok, p, table, coef, pw, y,
-                                                       r - dx + m, 0, dx)
-
-    @ti.func
-    def column_start(src: ti.template(), ok: ti.template(), p: ti.template(),
-                     table: ti.template(), coef: ti.template(), carry: ti.template(), pw, i0,
-                     x):
-        """Pixel: the vertical pairs (dy, 0) that end in the run's first dy rows."""
-        for k in ti.static(range(len(offsets))):
-            dy, dx = ti.static(offsets[k])
-            if ti.static(plan.sources[k] == "column"):
-                for m in ti.static(range(dy)):
-                    carry[plan.vcarry_at[k] + m] = pair(src, ok, p, table, coef, pw,
-                                                        i0 + r - dy + m, x, dy, 0)
-
-    return ring_prologue, ring_row_ends, row_start, column_start
-
-
-def _arg_types(plan):
-    """The step kernels' argument types: (frame, vector, mask, scratch, small):
-    frames, the ``ok`` mask, the ring and the law's table 1-D with
-    :attr:`KernelConfig.flat`; ``w`` and ``part`` (small) always 2-D."""
-    import taichi as ti
-
-    real, flat = _real(plan), plan.config.flat
-    small = ti.types.ndarray(dtype=real, ndim=2)
-    return (ti.types.ndarray(dtype=real, ndim=1 if flat else 2),
-            ti.types.ndarray(dtype=real, ndim=1), ti.types.ndarray(dtype=ti.u8,
-                                                                   ndim=1 if flat else 2),
-            ti.types.ndarray(dtype=real, ndim=1 if flat else 4), small)
-
-
-def _frame_size(plan):
-    """``frame_size(src, base, width)``: the unpadded ``(height, width)``."""
-    import taichi as ti
-
-    flat, r = plan.config.flat, plan.config.reach
-
-    @ti.func
-    def frame_size(src: ti.template(), base: ti.template(), width):
-        h = 0
-        wd = 0
-        if ti.static(flat):
-            h = base.shape[0] // width
-            wd = width
-        else:
-            h = src.shape[0] - 2 * r
-            wd = src.shape[1] - 2 * r
-        return ti.Vector([h, wd])
-
-    return frame_size
-
-
 def _sweep_kernel(plan, coefficients, pixel_flow, emit, starts):
     """The ``sweep`` layout's step (see the module docstring)."""
     import taichi as ti
 
-    real, r = _real(plan), plan.config.reach
+    real, r = real_type(plan), plan.config.reach
     ring_prologue, ring_row_ends, row_start, _ = starts
-    frame, vector, mask, scratch, small = _arg_types(plan)
-    cell = _access_functions(plan)[0]
-    frame_size = _frame_size(plan)
+    frame, vector, mask, scratch, small = arg_types(plan)
+    cell = access_functions(plan)[0]
+    frame_size = make_frame_size(plan)
     larger = make_larger()
 
     @ti.func
@@ -626,11 +357,11 @@ def _pixel_kernel(plan, coefficients, pixel_flow, emit, starts):
     """The ``pixel`` layout's step, its maxima tree-reduced in the same launch."""
     import taichi as ti
 
-    real, r = _real(plan), plan.config.reach
+    real, r = real_type(plan), plan.config.reach
     column_start = starts[3]
-    frame, vector, mask, scratch, small = _arg_types(plan)
-    cell = _access_functions(plan)[0]
-    frame_size = _frame_size(plan)
+    frame, vector, mask, scratch, small = arg_types(plan)
+    cell = access_functions(plan)[0]
+    frame_size = make_frame_size(plan)
     larger = make_larger()
     shrink, passes = make_tree_reduction()
 
@@ -684,9 +415,9 @@ def get_step_kernel(config):
     differ only in their loops and in what they carry.
     """
     plan = StepPlan.of(config)
-    coefficients, pair, pair_of = _law_functions(plan)
-    pixel_flow, emit = _flow_functions(plan, pair, pair_of)
-    starts = _start_functions(plan, pair)
+    coefficients, pair, pair_of = law_functions(plan)
+    pixel_flow, emit = flow_functions(plan, pair, pair_of)
+    starts = start_functions(plan, pair)
     build = _sweep_kernel if config.layout == "sweep" else _pixel_kernel
     return build(plan, coefficients, pixel_flow, emit, starts)
 
