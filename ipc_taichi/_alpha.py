@@ -68,7 +68,7 @@ def make_exp(real_is_f64):
     return exp
 
 
-def make_alpha(law_kind, precision, fast_exp=True):
+def make_alpha(law_kind, precision, fast_exp=True, flat_table=False):
     """The Taichi device function ``alpha(s, n, p, table)`` of a law kind: the
     one device-side evaluation of the coupling law, used by both kernel
     layouts and timed by the benchmark's floor measurement.
@@ -78,6 +78,12 @@ def make_alpha(law_kind, precision, fast_exp=True):
     (``table``). Law kind ``"constant"`` (see :func:`kernel_law_kind`) reads
     the floor alone: no exponential. ``fast_exp`` uses the inlined :func:`make_exp` (the CPU's
     scalar code gains 1.7x); otherwise the arch's own ``exp`` (CUDA's is fast).
+
+    The table lookup: the cell's corner is ``int(u)`` (``u >= 0`` after the
+    clamp, where truncation is ``floor`` without its call); with
+    ``flat_table`` the table comes as a 1-D row-major array and its four
+    corners are read at ``i * n + j`` (Taichi's CPU code would reload a 2-D
+    array's shape at each read).
     """
     import taichi as ti
 
@@ -87,20 +93,48 @@ def make_alpha(law_kind, precision, fast_exp=True):
     exp = make_exp(precision == "f64") if fast_exp else ti.exp
 
     @ti.func
+    def clamp(u, last):
+        """``u`` clamped to ``[0, last]`` by compares and selects (``u`` is never NaN)."""
+        c = ti.select(u > 0.0, u, 0.0)
+        return ti.select(c < last, c, last)
+
+    @ti.func
+    def corners(table: ti.template(), i, j, n):
+        """The table at (i, j), (i, j + 1), (i + 1, j), (i + 1, j + 1); ``n`` columns."""
+        t00 = ti.cast(0.0, real)
+        t01 = ti.cast(0.0, real)
+        t10 = ti.cast(0.0, real)
+        t11 = ti.cast(0.0, real)
+        if ti.static(flat_table):
+            k = i * n + j
+            t00 = table[k]
+            t01 = table[k + 1]
+            t10 = table[k + n]
+            t11 = table[k + n + 1]
+        else:
+            t00 = table[i, j]
+            t01 = table[i, j + 1]
+            t10 = table[i + 1, j]
+            t11 = table[i + 1, j + 1]
+        return ti.Vector([t00, t01, t10, t11])
+
+    @ti.func
     def alpha(s, n, p: ti.template(), table: ti.template()):
         a = ti.cast(0.0, real)
         if ti.static(constant_law):
             a = p[4]  # the floor: amplitudes are zero, so the formula's value exactly
         elif ti.static(table_law):
             last = p[2]
-            u = ti.min(ti.max((s - p[0]) * p[1], 0.0), last)
-            v = ti.min(ti.max((n - p[0]) * p[1], 0.0), last)
-            i0 = ti.min(ti.cast(ti.floor(u), ti.i32), ti.cast(last, ti.i32) - 1)
-            j0 = ti.min(ti.cast(ti.floor(v), ti.i32), ti.cast(last, ti.i32) - 1)
+            u = clamp((s - p[0]) * p[1], last)
+            v = clamp((n - p[0]) * p[1], last)
+            top = ti.cast(last, ti.i32) - 1
+            i0 = ti.min(ti.cast(u, ti.i32), top)
+            j0 = ti.min(ti.cast(v, ti.i32), top)
             fu = u - i0
             fv = v - j0
-            a = ((1 - fu) * ((1 - fv) * table[i0, j0] + fv * table[i0, j0 + 1])
-                 + fu * ((1 - fv) * table[i0 + 1, j0] + fv * table[i0 + 1, j0 + 1]))
+            t = corners(table, i0, j0, top + 2)
+            a = ((1 - fu) * ((1 - fv) * t[0] + fv * t[1])
+                 + fu * ((1 - fv) * t[2] + fv * t[3]))
         else:
             a = (p[0] * exp(-ti.abs(s - n) * p[1])
                  + p[2] * exp(-ti.sqrt(s * s + n * n) * p[3]) + p[4])

@@ -324,15 +324,17 @@ class _Run:
         self.info = info
         layout = layout or default_layout(info.arch)
         offsets = tuple(u for u, _ in model.geometry.half_stencil())
-        self.configs = {m: KernelConfig(offsets=offsets, law_kind=kernel_law_kind(model.law),
-                                        edge=model.edge, masked=m, precision=info.precision,
-                                        layout=layout) for m in (False, True)}
         if frames.on_device:
             check_torch_device(frames.data, info.arch, what)
         # working arrays live where the kernels run (Taichi ndarrays on CUDA);
         # a tensor's frame is handed to Taichi as it is, a NumPy frame copied
         device_buffers = info.arch == "cuda" or FORCE_DEVICE_BUFFERS
         self.device_buffers = device_buffers
+        # host arrays go to the kernels flat (see KernelConfig.flat)
+        self.configs = {m: KernelConfig(offsets=offsets, law_kind=kernel_law_kind(model.law),
+                                        edge=model.edge, masked=m, precision=info.precision,
+                                        layout=layout, flat=not device_buffers)
+                        for m in (False, True)}
         self.copy_frames = device_buffers and not frames.on_device
         self.ws = _workspace(info, frames.shape[1:], self.configs[False], device_buffers)
         self.p, self.w, self.table = _model_arrays(model, info, device_buffers)
@@ -437,9 +439,14 @@ class _Run:
     def step(self, masked, src, base, dst, sign):
         """One step; returns ``(max|dst - src|, max|dst|)`` over good pixels."""
         ws = self.ws
-        kernel = get_step_kernel(self.configs[masked])
-        kernel(src, base, dst, ws.ok, self.p, self.w, self.table, float(sign), ws.partials,
-               ws.ring, ws.strip)
+        config = self.configs[masked]
+        kernel = get_step_kernel(config)
+        ok, table, ring = ws.ok, self.table, ws.ring
+        if config.flat:
+            src, base, dst, ok, table, ring = (_flat(a) for a in (src, base, dst, ok, table,
+                                                                  ring))
+        kernel(src, base, dst, ok, self.p, self.w, table, float(sign), ws.partials, ring,
+               ws.strip, ws.shape[1])
         return ws.maxima()
 
     def finish(self, k, io, src, out, any_bad):
@@ -515,6 +522,11 @@ def _load_host(host, bad, io, ws, shift=None):
         interior(ws.ok, ws.reach)[...] = True if good is None else good
         ws.ok_clean = not any_bad
     return base, any_bad
+
+
+def _flat(array):
+    """A C-contiguous array as 1-D, without a copy (an error if one were needed)."""
+    return np.reshape(array, -1, copy=False)
 
 
 def _uploadable(array, dtype):

@@ -22,7 +22,7 @@ written. With the ``zero`` edge those border pixels are exactly the paper's
 ``isolated`` edge, or with bad pixels, an ``ok`` byte array (1 = may couple)
 zeroes every alpha that touches the border or a bad pixel. ``base`` is the
 *unpadded* frame (it is read at the pixel itself only), so the measured frame
-needs no padded copy. :func:`get_frame_kernels` gives ``load`` (unpadded frame
+needs no padded copy. :func:`~ipc_taichi._frames.get_frame_kernels` gives ``load`` (unpadded frame
 -> padded estimate, bad pixels zeroed, ``ok`` written, one flag set if any
 pixel is bad) and ``store`` (padded estimate -> unpadded frame), so padding and
 initialisation happen where the arrays live (on the GPU for CUDA).
@@ -69,7 +69,13 @@ Two loop layouts, chosen at compile time (``KernelConfig.layout``):
     (arithmetic is cheap on a GPU, memory traffic is not). The layout also
     runs on the CPU, which is how it is tested without a GPU.
 
-Compile-time (``ti.static``) choices form a frozen, hashable config. Law
+Compile-time (``ti.static``) choices form a frozen, hashable config
+(:class:`KernelConfig`); :class:`StepPlan` adds what follows from it (where
+each carried alpha lives), and :func:`get_step_kernel` composes a layout's
+kernel from small named device functions built on that plan
+(:mod:`ipc_taichi._stepparts`). On the host the arrays are passed flat
+(``KernelConfig.flat``): Taichi's CPU code reloads a 2-D array's shape and
+data pointer at every access, which cost the sweep 1.3-1.5x. Law
 coefficients and geometry weights are run-time ndarray arguments, so changing
 a number never recompiles; frame sizes, the border width and the strip height
 are run-time arguments too.
@@ -80,10 +86,21 @@ from dataclasses import dataclass
 
 from . import runtime
 from ._alpha import kernel_law_kind, make_alpha, make_exp
+from ._frames import MAX_FINITE, FrameKernels, get_frame_kernels
+from ._stepparts import (
+    access_functions,
+    arg_types,
+    flow_functions,
+    law_functions,
+    make_frame_size,
+    make_larger,
+    real_type,
+    start_functions,
+)
 
-__all__ = ["KernelConfig", "alpha_sources", "get_step_kernel", "get_frame_kernels",
+__all__ = ["KernelConfig", "StepPlan", "alpha_sources", "get_step_kernel", "get_frame_kernels",
            "get_reduce_kernel", "LAYOUTS", "partials_count", "tree_rows", "FAN_IN",
-           "TREE_LEVELS", "MAX_FINITE",
+           "TREE_LEVELS", "MAX_FINITE", "FrameKernels",
            # the device law, from ._alpha
            "kernel_law_kind", "make_alpha", "make_exp"]
 
@@ -91,7 +108,6 @@ LAYOUTS = ("sweep", "pixel")
 SPREAD = 512  # ``sweep`` layout: loop iterations per strip (see step_sweep)
 FAN_IN = 32  # entries one thread reduces per tree level
 TREE_LEVELS = 5  # tree passes: up to FAN_IN ** TREE_LEVELS (33.5 M) partials
-MAX_FINITE = {"f64": 1.7976931348623157e308, "f32": 3.4028234663852886e38}
 
 
 @dataclass(frozen=True)
@@ -102,6 +118,10 @@ class KernelConfig:
     masked: bool
     precision: str  # "f64" | "f32"
     layout: str = "sweep"  # "sweep" (CPU) | "pixel" (CUDA)
+    # arrays passed flat (1-D, row-major) and indexed as row * width + column,
+    # as the host path does (Taichi's CPU code reloads a 2-D array's shape at
+    # every access); False: 2-D Taichi ndarrays, the device path
+    flat: bool = True
 
     @property
     def reach(self):
@@ -216,195 +236,143 @@ def alpha_sources(config):
     return tuple("column" if dx == 0 else "fresh" for _, dx in config.offsets)
 
 
-@functools.cache
-def get_step_kernel(config):
-    """Build (once per config) the Taichi kernel for one coupling step.
+@dataclass(frozen=True)
+class StepPlan:
+    """The compile-time plan of one step kernel: its :class:`KernelConfig` and
+    the static bookkeeping of the carried alphas, worked out once in plain
+    Python (:meth:`of`); every field is a ``ti.static`` value in the kernels."""
 
-    Both layouts are built from the same device functions: ``pair`` (one
-    pair's alpha, gated by ``ok``), ``pixel_flow`` (the coupling term of one
-    pixel, each offset's second alpha taken from where :func:`alpha_sources`
-    says) and ``emit`` (the new value written, the stopping-rule maxima
-    updated); the layouts differ only in their loops and in what they carry.
-    """
+    config: KernelConfig
+    sources: tuple  # per offset: where its a_minus comes from (alpha_sources)
+    carry_at: tuple  # per offset: its first row register (sweep, dy == 0)
+    vcarry_at: tuple  # per offset: its first column register (pixel, dx == 0)
+    ring_index: tuple  # per offset: its ring slot (dy > 0), else -1
+    left_extra: tuple  # per ring slot: columns left of 0 that later rows read back
+    right_extra: tuple  # per ring slot: columns right of the last that later rows read
+    prologue_lo: tuple  # per ring slot: the first column of the prologue rows
+    carry_size: int  # registers carried along a row (sweep) or down a column (pixel)
+
+    @classmethod
+    def of(cls, config):
+        if config.layout not in LAYOUTS:
+            raise ValueError(f"unknown kernel layout {config.layout!r}")
+        offsets, vertical = config.offsets, config.vertical
+        n_off = len(offsets)
+        n_carry = max(1, sum(dx for dy, dx in offsets if dy == 0))
+        n_vcarry = max(1, sum(dy for dy, dx in offsets if dx == 0))
+        return cls(
+            config=config, sources=alpha_sources(config),
+            carry_at=tuple(sum(ddx for ddy, ddx in offsets[:k] if ddy == 0)
+                           for k in range(n_off)),
+            vcarry_at=tuple(sum(ddy for ddy, ddx in offsets[:k] if ddx == 0)
+                            for k in range(n_off)),
+            ring_index=tuple(vertical.index(k) if k in vertical else -1 for k in range(n_off)),
+            left_extra=tuple(tuple(range(-offsets[k][1], 0)) for k in vertical),
+            right_extra=tuple(max(0, -offsets[k][1]) for k in vertical),
+            prologue_lo=tuple(min(0, -offsets[k][1]) for k in vertical),
+            carry_size=n_carry if config.layout == "sweep" else n_vcarry)
+
+    @property
+    def law_at(self):
+        """Where the law's 5 kernel parameters start among the coefficients."""
+        return 2 * len(self.config.offsets)
+
+    @property
+    def n_coef(self):
+        """Registers of ``coefficients``: two weights per offset, then the law's
+        5 parameters (a constant law's alpha last)."""
+        return self.law_at + 5
+
+    @property
+    def rings(self):
+        return "ring" in self.sources
+
+    @property
+    def carries_row(self):
+        return "row" in self.sources
+
+
+def _sweep_kernel(plan, coefficients, pixel_flow, emit, starts):
+    """The ``sweep`` layout's step (see the module docstring)."""
     import taichi as ti
 
-    if config.layout not in LAYOUTS:
-        raise ValueError(f"unknown kernel layout {config.layout!r}")
-    real = ti.f64 if config.precision == "f64" else ti.f32
-    offsets = config.offsets
-    n_off = len(offsets)
-    r = config.reach
-    uses_ok = config.uses_ok
-    vertical = config.vertical
-    depth = config.ring_depth
-    sources = alpha_sources(config)
-    # static bookkeeping of the carried alphas, worked out here in plain Python
-    carries_row = "row" in sources
-    rings = "ring" in sources
-    carry_at = tuple(sum(ddx for ddy, ddx in offsets[:k] if ddy == 0) for k in range(n_off))
-    n_carry = max(1, sum(dx for dy, dx in offsets if dy == 0))
-    ring_index = tuple(vertical.index(k) if k in vertical else -1 for k in range(n_off))
-    # columns of a ring row that pixels of later rows read besides 0 .. width-1
-    left_extra = tuple(tuple(range(-offsets[k][1], 0)) for k in vertical)
-    right_extra = tuple(max(0, -offsets[k][1]) for k in vertical)
-    prologue_lo = tuple(min(0, -offsets[k][1]) for k in vertical)
-    vcarry_at = tuple(sum(ddy for ddy, ddx in offsets[:k] if ddx == 0) for k in range(n_off))
-    n_vcarry = max(1, sum(dy for dy, dx in offsets if dx == 0))
-    carry_size = n_carry if config.layout == "sweep" else n_vcarry
-
-    alpha = make_alpha(config.law_kind, config.precision, fast_exp=config.layout == "sweep")
-    shrink, passes = make_tree_reduction()
-
-    n_coef = 2 * n_off + 1
+    real, r = real_type(plan), plan.config.reach
+    ring_prologue, ring_row_ends, row_start, _ = starts
+    frame, vector, mask, scratch, small = arg_types(plan)
+    cell = access_functions(plan)[0]
+    frame_size = make_frame_size(plan)
+    larger = make_larger()
 
     @ti.func
-    def coefficients(p: ti.template(), w: ti.template()):
-        """The geometry's weights ``(w[k, 0], w[k, 1])`` for each offset k and,
-        last, a constant law's alpha, read once per thread into registers
-        (read from memory at every pixel, the compiler cannot keep them there:
-        ``dst`` might alias them)."""
-        coef = ti.Vector([0.0] * n_coef, dt=real)
-        for k in ti.static(range(n_off)):
-            coef[2 * k] = w[k, 0]
-            coef[2 * k + 1] = w[k, 1]
-        if ti.static(config.law_kind == "constant"):
-            coef[n_coef - 1] = p[4]
-        return coef
-
-    @ti.func
-    def pair(src: ti.template(), ok: ti.template(), p: ti.template(), table: ti.template(),
-             coef: ti.template(), y, x, dy: ti.template(), dx: ti.template()):
-        """alpha of the pair (y, x) -- (y + dy, x + dx), padded coordinates."""
-        a = ti.cast(0.0, real)
-        if ti.static(config.law_kind == "constant"):
-            a = coef[n_coef - 1]  # what alpha() returns for this law, kept in a register
-        else:
-            a = alpha(src[y, x], src[y + dy, x + dx], p, table)
-        if ti.static(uses_ok):
-            a *= ti.cast(ok[y, x] * ok[y + dy, x + dx], real)
-        return a
-
-    @ti.func
-    def pair_flow(flow, src: ti.template(), coef: ti.template(), y, x, sv, k: ti.template(),
-                  a_plus, a_minus):
-        """``flow`` plus what pixel (y, x) gains through offset k: the neighbour
-        at p + u sends by -u (weight w[k, 1]), p sends to it by +u (w[k, 0]);
-        likewise with the neighbour at p - u."""
-        dy, dx = ti.static(offsets[k])
-        wp = coef[2 * k]  # weight of the move p -> p+u
-        wm = coef[2 * k + 1]  # weight of the move p -> p-u
-        return (flow + a_plus * (wm * src[y + dy, x + dx] - wp * sv)
-                + a_minus * (wp * src[y - dy, x - dx] - wm * sv))
-
-    @ti.func
-    def pixel_flow(src: ti.template(), ok: ti.template(), p: ti.template(),
-                   coef: ti.template(), table: ti.template(), ring: ti.template(), s, i, y, x,
-                   sv, carry: ti.template()):
-        """The coupling term at padded (y, x) (row ``i`` of the frame); the
-        alphas it computes are carried for the pixels that reuse them."""
-        flow = ti.cast(0.0, real)
-        for k in ti.static(range(n_off)):
-            dy, dx = ti.static(offsets[k])
-            a_plus = pair(src, ok, p, table, coef, y, x, dy, dx)
-            a_minus = ti.cast(0.0, real)
-            if ti.static(sources[k] == "row"):
-                at = ti.static(carry_at[k])
-                a_minus = carry[at]
-                for m in ti.static(range(dx - 1)):
-                    carry[at + m] = carry[at + m + 1]
-                carry[at + dx - 1] = a_plus
-            elif ti.static(sources[k] == "ring"):
-                kv = ti.static(ring_index[k])
-                a_minus = ring[s, kv, (i - dy + r) % depth, x - dx]
-                ring[s, kv, (i + r) % depth, x] = a_plus
-            elif ti.static(sources[k] == "column"):
-                at = ti.static(vcarry_at[k])
-                a_minus = carry[at]
-                for m in ti.static(range(dy - 1)):
-                    carry[at + m] = carry[at + m + 1]
-                carry[at + dy - 1] = a_plus
-            else:
-                a_minus = pair(src, ok, p, table, coef, y - dy, x - dx, dy, dx)
-            flow = pair_flow(flow, src, coef, y, x, sv, k, a_plus, a_minus)
-        return flow
-
-    @ti.func
-    def emit(base: ti.template(), dst: ti.template(), sign, i, j, flow):
-        """Write ``base + sign * flow`` at frame pixel (i, j); returns it."""
-        v = base[i, j] + sign * flow
-        dst[i + r, j + r] = v
-        return v
-
-    # the two layouts take the same arguments (the pixel layout ignores ring)
-    frame = ti.types.ndarray(dtype=real, ndim=2)
-    vector = ti.types.ndarray(dtype=real, ndim=1)
-    mask = ti.types.ndarray(dtype=ti.u8, ndim=2)
-    scratch = ti.types.ndarray(dtype=real, ndim=4)
+    def strip_rows(src: ti.template(), base: ti.template(), dst: ti.template(),
+                   ok: ti.template(), p: ti.template(), coef: ti.template(),
+                   table: ti.template(), sign, part: ti.template(), ring: ti.template(), s,
+                   i0, i1, wd):
+        """Rows i0 .. i1 - 1 of strip s, left to right; its maxima into part[s]."""
+        dmax = ti.cast(0.0, real)
+        smax = ti.cast(0.0, real)
+        if ti.static(plan.rings):
+            ring_prologue(src, ok, p, table, coef, ring, s, i0, wd)
+        pw = wd + 2 * r
+        for i in range(i0, i1):
+            y = i + r
+            if ti.static(plan.rings):
+                ring_row_ends(src, ok, p, table, coef, ring, s, i, wd)
+            carry = ti.Vector([0.0] * plan.carry_size, dt=real)
+            if ti.static(plan.carries_row):
+                row_start(src, ok, p, table, coef, carry, pw, y)
+            for j in range(wd):
+                x = j + r
+                sv = cell(src, y, x, pw)
+                flow = pixel_flow(src, ok, p, coef, table, ring, pw, s, i, y, x, sv, carry)
+                v = emit(base, dst, sign, pw, i, j, flow)
+                dmax = larger(dmax, ti.abs(v - sv))
+                smax = larger(smax, ti.abs(v))
+        part[s, 0] = dmax
+        part[s, 1] = smax
 
     @ti.kernel
-    def step_sweep(src: frame, base: frame, dst: frame, ok: mask, p: vector, w: frame,
-                   table: frame, sign: real, part: frame, ring: scratch, strip: ti.i32):
-        h = src.shape[0] - 2 * r
-        wd = src.shape[1] - 2 * r
+    def step_sweep(src: frame, base: frame, dst: frame, ok: mask, p: vector, w: small,
+                   table: frame, sign: real, part: small, ring: scratch, strip: ti.i32,
+                   width: ti.i32):
+        size = frame_size(src, base, width)
+        h = size[0]
+        wd = size[1]
         # One strip per task. Taichi 1.7's CPU backend hands out a parallel
         # range in chunks of up to 512 iterations whatever block_dim says, so a
         # loop over a few dozen strips would run on one thread: spread the
         # strips 512 iterations apart and let only the first of each do the work.
-        for task in range(ring.shape[0] * SPREAD):
+        for task in range((h + strip - 1) // strip * SPREAD):
             if task % SPREAD == 0:
                 s = task // SPREAD
                 coef = coefficients(p, w)
                 i0 = s * strip
-                i1 = ti.min(h, i0 + strip)
-                dmax = ti.cast(0.0, real)
-                smax = ti.cast(0.0, real)
-                if ti.static(rings):
-                    # prologue: pairs that start in the dy rows above the strip
-                    for kv in ti.static(range(len(vertical))):
-                        dy, dx = ti.static(offsets[vertical[kv]])
-                        for row in range(i0 - dy, i0):
-                            slot = (row + r) % depth
-                            for c in range(prologue_lo[kv], wd + right_extra[kv]):
-                                ring[s, kv, slot, c + r] = pair(src, ok, p, table, coef,
-                                                                row + r, c + r, dy, dx)
-                for i in range(i0, i1):
-                    y = i + r
-                    if ti.static(rings):
-                        # pairs starting beyond the row's ends that later rows read back
-                        for kv in ti.static(range(len(vertical))):
-                            dy, dx = ti.static(offsets[vertical[kv]])
-                            slot = (i + r) % depth
-                            for c in ti.static(left_extra[kv]):
-                                ring[s, kv, slot, c + r] = pair(src, ok, p, table, coef,
-                                                                y, c + r, dy, dx)
-                            for c in range(wd, wd + right_extra[kv]):
-                                ring[s, kv, slot, c + r] = pair(src, ok, p, table, coef,
-                                                                y, c + r, dy, dx)
-                    # horizontal pairs to the left of column 0, carried in registers
-                    carry = ti.Vector([0.0] * carry_size, dt=real)
-                    if ti.static(carries_row):
-                        for k in ti.static(range(n_off)):
-                            dy, dx = ti.static(offsets[k])
-                            if ti.static(dy == 0):
-                                at = ti.static(carry_at[k])
-                                for m in ti.static(range(dx)):
-                                    carry[at + m] = pair(src, ok, p, table, coef, y,
-                                                         r - dx + m, 0, dx)
-                    for j in range(wd):
-                        x = j + r
-                        sv = src[y, x]
-                        flow = pixel_flow(src, ok, p, coef, table, ring, s, i, y, x, sv, carry)
-                        v = emit(base, dst, sign, i, j, flow)
-                        dmax = ti.max(dmax, ti.abs(v - sv))
-                        smax = ti.max(smax, ti.abs(v))
-                part[s, 0] = dmax
-                part[s, 1] = smax
+                strip_rows(src, base, dst, ok, p, coef, table, sign, part, ring, s, i0,
+                           ti.min(h, i0 + strip), wd)
+
+    return step_sweep
+
+
+def _pixel_kernel(plan, coefficients, pixel_flow, emit, starts):
+    """The ``pixel`` layout's step, its maxima tree-reduced in the same launch."""
+    import taichi as ti
+
+    real, r = real_type(plan), plan.config.reach
+    column_start = starts[3]
+    frame, vector, mask, scratch, small = arg_types(plan)
+    cell = access_functions(plan)[0]
+    frame_size = make_frame_size(plan)
+    larger = make_larger()
+    shrink, passes = make_tree_reduction()
 
     @ti.kernel
-    def step_pixel(src: frame, base: frame, dst: frame, ok: mask, p: vector, w: frame,
-                   table: frame, sign: real, part: frame, ring: scratch, strip: ti.i32):
-        h = src.shape[0] - 2 * r
-        wd = src.shape[1] - 2 * r
+    def step_pixel(src: frame, base: frame, dst: frame, ok: mask, p: vector, w: small,
+                   table: frame, sign: real, part: small, ring: scratch, strip: ti.i32,
+                   width: ti.i32):
+        size = frame_size(src, base, width)
+        h = size[0]
+        wd = size[1]
+        pw = wd + 2 * r
         runs = (h + strip - 1) // strip
         n0 = runs * wd
         n1 = shrink(n0)
@@ -419,86 +387,39 @@ def get_step_kernel(config):
             i1 = ti.min(h, i0 + strip)
             dmax = ti.cast(0.0, real)
             smax = ti.cast(0.0, real)
-            # vertical pairs (dy, 0) that end in the run's first dy rows start above it
-            carry = ti.Vector([0.0] * carry_size, dt=real)
-            for k in ti.static(range(n_off)):
-                dy, dx = ti.static(offsets[k])
-                if ti.static(sources[k] == "column"):
-                    at = ti.static(vcarry_at[k])
-                    for m in ti.static(range(dy)):
-                        carry[at + m] = pair(src, ok, p, table, coef, i0 + r - dy + m, x,
-                                             dy, 0)
+            carry = ti.Vector([0.0] * plan.carry_size, dt=real)
+            column_start(src, ok, p, table, coef, carry, pw, i0, x)
             for i in range(i0, i1):
                 y = i + r
-                sv = src[y, x]
-                flow = pixel_flow(src, ok, p, coef, table, ring, 0, i, y, x, sv, carry)
-                v = emit(base, dst, sign, i, j, flow)
-                dmax = ti.max(dmax, ti.abs(v - sv))
-                smax = ti.max(smax, ti.abs(v))
+                sv = cell(src, y, x, pw)
+                flow = pixel_flow(src, ok, p, coef, table, ring, pw, 0, i, y, x, sv, carry)
+                v = emit(base, dst, sign, pw, i, j, flow)
+                dmax = larger(dmax, ti.abs(v - sv))
+                smax = larger(smax, ti.abs(v))
             part[b * wd + j, 0] = dmax
             part[b * wd + j, 1] = smax
         passes(part, n0, n1, n2, n3, n4, n5)
 
-    return step_sweep if config.layout == "sweep" else step_pixel
-
-
-@dataclass(frozen=True)
-class FrameKernels:
-    """The kernels that move a frame in and out of the padded working arrays."""
-
-    load: object
-    store: object
+    return step_pixel
 
 
 @functools.cache
-def get_frame_kernels(precision):
-    """Build (once per precision) the ``load`` and ``store`` kernels.
+def get_step_kernel(config):
+    """Build (once per config) the Taichi kernel for one coupling step.
 
-    ``load(src, io, copy_in, mask, use_mask, prev, ok, r, flag)``: for every
-    pixel of the unpadded frame ``src``, a pixel is *bad* when it is not finite
-    or (with ``use_mask`` != 0) ``mask`` is non-zero there. The frame with bad
-    pixels set to 0 goes into ``io`` (the measured frame the Jacobi step reads
-    as ``base``; with ``copy_in`` == 0, ``src`` is ``io`` and only bad pixels
-    are written) and into the padded estimate ``prev`` (S_0 = M); ``ok`` is 1
-    for good pixels and 0 for bad ones, and ``flag[0]`` (0 before the launch)
-    becomes 1 if any pixel is bad (a plain store of the same value by every bad
-    pixel: no atomic). ``r`` is the border width of ``prev`` and ``ok``; their
-    borders are not touched. One parallel loop: a serial task more would cost
-    a thread-pool wake-up on the CPU.
-
-    ``store(src, io, r)``: the frame inside the padded ``src`` into ``io``.
+    Both layouts are built from the same device functions of one
+    :class:`StepPlan`: ``pair`` (one pair's alpha, gated by ``ok``),
+    ``pixel_flow`` (the coupling term of one pixel, each offset's second alpha
+    taken from where :func:`alpha_sources` says), ``emit`` (the new value
+    written) and the functions that start the carried alphas; the layouts
+    differ only in their loops and in what they carry.
     """
-    import taichi as ti
-
-    real = ti.f64 if precision == "f64" else ti.f32
-    frame = ti.types.ndarray(dtype=real, ndim=2)
-    vector = ti.types.ndarray(dtype=real, ndim=1)
-    mask = ti.types.ndarray(dtype=ti.u8, ndim=2)
-    biggest = MAX_FINITE[precision]
-
-    @ti.kernel
-    def load(src: frame, io: frame, copy_in: ti.i32, bad_in: mask, use_mask: ti.i32,
-             prev: frame, ok: mask, r: ti.i32, flag: vector):
-        for i, j in ti.ndrange(io.shape[0], io.shape[1]):
-            v = src[i, j]
-            good = ti.abs(v) <= biggest  # False for NaN and +-inf
-            if use_mask != 0:
-                if bad_in[i, j] != 0:
-                    good = False
-            if not good:
-                v = ti.cast(0.0, real)
-                flag[0] = 1.0
-            if copy_in != 0 or not good:
-                io[i, j] = v
-            prev[i + r, j + r] = v
-            ok[i + r, j + r] = ti.cast(ti.select(good, 1, 0), ti.u8)
-
-    @ti.kernel
-    def store(src: frame, io: frame, r: ti.i32):
-        for i, j in ti.ndrange(io.shape[0], io.shape[1]):
-            io[i, j] = src[i + r, j + r]
-
-    return FrameKernels(load, store)
+    plan = StepPlan.of(config)
+    coefficients, pair, pair_of = law_functions(plan)
+    pixel_flow, emit = flow_functions(plan, pair, pair_of)
+    starts = start_functions(plan, pair)
+    build = _sweep_kernel if config.layout == "sweep" else _pixel_kernel
+    return build(plan, coefficients, pixel_flow, emit, starts)
 
 
 def _clear_caches():

@@ -189,3 +189,36 @@ def test_ramp_bench_row_small(cpu):
         assert total[1] < total[0]
     text = render_section(section)
     assert "96x96 x 8 groups" in text and "| donlon2018 | warm start |" in text
+
+
+# --------------------------------------------------------------------------- bench rows
+
+
+def test_issue_28_rows_beside_the_jwst_step(cpu):
+    """The f32 rows of every law (from scratch and warm-started), the step
+    interleaved with them, the streaming floor and the general law against it:
+    measured on a small ramp in this process and rendered."""
+    pytest.importorskip("jwst")
+    from ipc_taichi.bench import measure_pipeline_ipc, render_pipeline
+
+    try:
+        result = measure_pipeline_ipc(size=64, nints=1, ngroups=3, repeats=1, precisions=("f32",))
+    finally:
+        runtime.init("cpu", "f64")  # it leaves Taichi in f32
+    rows = {(r["law"], r["warm_start"]): r for r in result["law_rows"]}
+    assert sorted(rows) == [("constant:0.0125", True), ("donlon2018", False),
+                            ("donlon2018", True), ("table 257x257", False),
+                            ("table 257x257", True)]
+    step_error = result["rows"][0]["max_error"]
+    for r in result["law_rows"]:
+        assert r["median_s"] > 0 and r["vs_jwst_interleaved"] > 0 and len(r["jwst_times_s"]) == 1
+        assert 0 < r["max_error"] < step_error / 5  # each law decoupled by itself, exactly
+        assert r["total_iterations"] >= 3  # one iteration at least per group
+    constant_scratch = result["rows"][1]["total_iterations"]
+    assert rows[("constant:0.0125", True)]["total_iterations"] < constant_scratch
+    general = result["general"]
+    assert general["size"] == 128 and general["floor_s"] > 0
+    assert general["vs_floor"] == general["iteration_s"] / general["floor_s"]
+    text = render_pipeline(result)
+    assert "table 257x257 (cpu f32, warm start)" in text
+    assert f"**{general['vs_floor']:.1f}x the streaming floor**" in text

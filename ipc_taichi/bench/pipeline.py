@@ -16,6 +16,14 @@ Both read the ramp's float32 groups and are timed on the compute alone (the
 step's data copied in before each run, outside the timing); both results are
 compared with the true signal. Needs the
 ``jwst`` package (the ``jwst`` extra).
+
+Issue 28's rows (``law_rows``, f32, the same process and the same step time):
+the ramp coupled with, and decoupled by, ``donlon2018`` and a 257x257 table
+law (:func:`table_law`, the size ``calibrate`` writes), each from scratch and
+warm-started (``decouple(warm_start=True)``), and the constant law
+warm-started; the machine's streaming floor measured beside them (``floor``:
+one NumPy copy of a frame, :func:`streaming_floor`); and the general law on a
+``general_size`` frame per iteration against that floor (``general``).
 """
 
 import statistics
@@ -27,10 +35,35 @@ import ipc_taichi
 
 from ..datasets import star_field
 
-__all__ = ["measure_pipeline_ipc", "jwst_ipc_kernel", "PIPELINE_SIZE"]
+__all__ = ["measure_pipeline_ipc", "jwst_ipc_kernel", "table_law", "streaming_floor",
+           "PIPELINE_SIZE", "GENERAL_SIZE"]
 
 NIRCAM_BORDER = 4  # reference pixels on each side of a NIRCam full frame
 PIPELINE_SIZE = 2048  # a NIRCam full frame
+GENERAL_SIZE = 4096  # the general law's frame, per iteration against the floor
+
+
+def table_law(n=257):
+    """``donlon2018`` sampled on an ``n x n`` grid over 0 .. 65535 e- (the
+    size of table ``calibrate`` writes)."""
+    from ipc_taichi import TabulatedLaw, donlon2018
+
+    return TabulatedLaw.from_callable(donlon2018().alpha, (0.0, 65535.0), n=n,
+                                      name=f"table{n}")
+
+
+def streaming_floor(shape, dtype, repeats=7):
+    """The machine's streaming floor: the best time [s] of one NumPy copy of a
+    frame of ``shape`` and ``dtype`` (one read and one write of every pixel)."""
+    a = np.ones(shape, dtype)
+    b = np.empty_like(a)
+    np.copyto(b, a)
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        np.copyto(b, a)
+        times.append(time.perf_counter() - t0)
+    return min(times)
 
 
 def jwst_ipc_kernel(alpha):
@@ -47,16 +80,17 @@ def jwst_ipc_kernel(alpha):
     return crop / crop.sum()
 
 
-def _ramp(size, nints, ngroups, alpha, seed):
+def _ramp(size, nints, ngroups, alpha, seed, law=None):
     """``(truth, measured)`` in electrons, shape ``(nints * ngroups, size, size)``:
     a star field on a sky, accumulating group by group; the reference border
-    holds no signal and is not coupled."""
+    holds no signal and is not coupled. ``law``: the coupling law (default
+    ``constant:<alpha>``)."""
     b = NIRCAM_BORDER
     rate = np.zeros((size, size))
     rate[b:-b, b:-b] = star_field(size - 2 * b, seed=seed) / ngroups
     truth = np.stack([rate * (g + 1) for _ in range(nints) for g in range(ngroups)])
     measured = truth.copy()
-    inner = ipc_taichi.couple(truth[:, b:-b, b:-b], law=f"constant:{alpha}")
+    inner = ipc_taichi.couple(truth[:, b:-b, b:-b], law=law or f"constant:{alpha}")
     measured[:, b:-b, b:-b] = inner
     return truth, measured
 
@@ -90,8 +124,87 @@ def _median(fn, repeats, before=None):
     return statistics.median(times), times
 
 
+def _time_decouple(groups, truth, law, info, repeats, warm_start=False, step=None):
+    """Median time of :func:`ipc_taichi.decouple` of ``groups`` (f32 ramp
+    groups, one stack) with ``law`` in the running precision; a row dict
+    (``median_s``, ``times_s``, ``max_error`` over the science pixels,
+    ``iterations``: the distinct counts, ``total_iterations``). With ``step``
+    (a callable returning the JWST step's compute time), the step is timed
+    before each run, interleaved, and ``vs_jwst_interleaved`` is the ratio of
+    the two medians: on a machine shared with other work both see the same
+    load."""
+    import ipc_taichi
+
+    b = NIRCAM_BORDER
+    science = (slice(None), slice(b, -b), slice(b, -b))
+    run = dict(law=law, arch=info.arch, precision=info.precision, warm_start=warm_start)
+    out = np.empty(groups.shape, dtype=info.dtype)
+    ipc_taichi.decouple(groups[:2, :64, :64], **run)  # JIT outside the timing
+    infos = []
+
+    def ours():
+        infos[:] = ipc_taichi.decouple(groups, out=out, full_output=True, **run)[1]
+
+    steps = []
+    median, times = _median(ours, repeats, None if step is None else
+                            lambda: steps.append(step()))
+    extra = {} if step is None else {"jwst_times_s": steps,
+                                     "vs_jwst_interleaved": median / statistics.median(steps)}
+    return {**extra, "median_s": median, "times_s": times,
+            "max_error": float(np.abs(out - truth)[science].max()),
+            "iterations": sorted({i.iterations for i in infos}),
+            "total_iterations": sum(i.iterations for i in infos)}
+
+
+def _law_rows(size, nints, ngroups, alpha, seed, repeats, step, jwst_s):
+    """Issue 28's rows in f32 (see the module docstring), each with ``vs_jwst``
+    (against the step's first timing, ``jwst_s``) and ``vs_jwst_interleaved``."""
+    import ipc_taichi
+
+    info = ipc_taichi.init(precision="f32")
+    rows = []
+    for name, law in ((f"constant:{alpha}", None), ("donlon2018", "donlon2018"),
+                      ("table 257x257", table_law())):
+        truth, measured = _ramp(size, nints, ngroups, alpha, seed, law=law)
+        groups = measured.astype(np.float32)
+        for warm in ((True,) if law is None else (False, True)):
+            row = _time_decouple(groups, truth, law or f"constant:{alpha}", info, repeats,
+                                 warm_start=warm, step=step)
+            row.update(row=f"decouple, {name} ({info.arch} f32, "
+                           f"{'warm start' if warm else 'from scratch'})",
+                       law=name, warm_start=warm, vs_jwst=row["median_s"] / jwst_s)
+            rows.append(row)
+    return rows
+
+
+def _general(size, repeats):
+    """The general law (``donlon2018``) on a ``size`` x ``size`` f32 frame:
+    seconds per iteration (5 iterations less 1, so that the per-call work
+    cancels) against the streaming floor measured here, one NumPy copy."""
+    import ipc_taichi
+    from ipc_taichi.datasets import uniform_frame
+
+    info = ipc_taichi.init(precision="f32")
+    measured = ipc_taichi.couple(uniform_frame(size).astype(np.float32))
+    out = np.empty_like(measured)
+    ipc_taichi.decouple(measured[:64, :64], tol=0, max_iter=1)  # JIT outside the timing
+    per = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        ipc_taichi.decouple(measured, tol=0, max_iter=5, out=out)
+        t1 = time.perf_counter()
+        ipc_taichi.decouple(measured, tol=0, max_iter=1, out=out)
+        per.append(((t1 - t0) - (time.perf_counter() - t1)) / 4)
+    floor = streaming_floor(measured.shape, np.float32)
+    iteration = statistics.median(per)
+    return {"size": size, "law": "donlon2018", "precision": info.precision,
+            "iteration_s": iteration, "iteration_times_s": per, "floor_s": floor,
+            "vs_floor": iteration / floor,
+            "ns_per_pixel": iteration / size ** 2 * 1e9}
+
+
 def measure_pipeline_ipc(size=PIPELINE_SIZE, nints=2, ngroups=4, alpha=0.0125, repeats=3, seed=3,
-                         precisions=("f64", "f32")):
+                         precisions=("f64", "f32"), laws=True, general_size=None):
     """Time the JWST ``ipc`` step's compute and :func:`ipc_taichi.decouple`
     with the constant law on the same ramp, in this process.
 
@@ -102,8 +215,11 @@ def measure_pipeline_ipc(size=PIPELINE_SIZE, nints=2, ngroups=4, alpha=0.0125, r
         ``max_error`` in electrons over the science pixels; for the decoupler,
         one row per precision in ``precisions``, each with its ``iterations``
         and ``vs_jwst``, its median over the step's); ``ratio``: that of the
-        first precision; the ramp's description. Taichi is left in the last
-        precision.
+        first precision; the ramp's description. With ``laws``: ``law_rows``
+        (issue 28's f32 rows, see the module docstring), ``floor_s`` (one
+        NumPy copy of a ``size`` x ``size`` f32 frame) and ``general`` (the
+        general law per iteration on a ``general_size`` frame, default twice
+        ``size``, against the floor there). Taichi is left in f32.
     """
     import logging
 
@@ -120,6 +236,12 @@ def measure_pipeline_ipc(size=PIPELINE_SIZE, nints=2, ngroups=4, alpha=0.0125, r
     def reload():
         model.data = ramp32.copy()
 
+    def step():
+        reload()
+        t0 = time.perf_counter()
+        ipc_corr.ipc_correction(model, ipc_model)
+        return time.perf_counter() - t0
+
     logging.getLogger("jwst").setLevel(logging.WARNING)
     jwst_s, jwst_times = _median(lambda: ipc_corr.ipc_correction(model, ipc_model), repeats,
                                  reload)
@@ -133,20 +255,14 @@ def measure_pipeline_ipc(size=PIPELINE_SIZE, nints=2, ngroups=4, alpha=0.0125, r
              "times_s": jwst_times, "max_error": jwst_err}]
     for precision in precisions:
         info = ipc_taichi.init(precision=precision)
-        run = dict(law=law, arch=info.arch, precision=precision)
-        out = np.empty(measured.shape, dtype=info.dtype)
-        ipc_taichi.decouple(groups[:1, :64, :64], **run)  # JIT outside the timing
-        infos = []
-
-        def ours():  # timed by _median at once, within this iteration
-            infos[:] = ipc_taichi.decouple(groups, out=out, full_output=True,  # noqa: B023
-                                           **run)[1]  # noqa: B023
-
-        ours_s, ours_times = _median(ours, repeats)
-        rows.append({"row": f"decouple, constant law ({info.arch} {info.precision})",
-                     "median_s": ours_s, "times_s": ours_times,
-                     "max_error": float(np.abs(out - truth)[science].max()),
-                     "iterations": sorted({i.iterations for i in infos}),
-                     "vs_jwst": ours_s / jwst_s})
+        row = _time_decouple(groups, truth, law, info, repeats, step=step)
+        row.update(row=f"decouple, constant law ({info.arch} {info.precision})",
+                   vs_jwst=row["median_s"] / jwst_s)
+        rows.append(row)
+    law_rows = _law_rows(size, nints, ngroups, alpha, seed, repeats, step, jwst_s) if laws else []
+    floor = streaming_floor((size, size), np.float32)
+    general = _general(general_size or 2 * size, repeats) if laws else None
     return {"size": size, "nints": nints, "ngroups": ngroups, "alpha": alpha,
-            "arch": info.arch, "ratio": rows[1]["vs_jwst"], "rows": rows}
+            "arch": info.arch, "ratio": rows[1]["vs_jwst"], "rows": rows,
+            "law_rows": law_rows, "floor_s": floor, "jwst_per_group_s": jwst_s / len(groups),
+            "general": general}
