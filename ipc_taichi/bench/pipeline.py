@@ -33,7 +33,8 @@ import numpy as np
 
 import ipc_taichi
 
-from ..datasets import star_field
+from ..datasets import star_field, uniform_frame
+from ..laws import TabulatedLaw, donlon2018
 
 __all__ = ["measure_pipeline_ipc", "jwst_ipc_kernel", "table_law", "streaming_floor",
            "PIPELINE_SIZE", "GENERAL_SIZE"]
@@ -46,7 +47,6 @@ GENERAL_SIZE = 4096  # the general law's frame, per iteration against the floor
 def table_law(n=257):
     """``donlon2018`` sampled on an ``n x n`` grid over 0 .. 65535 e- (the
     size of table ``calibrate`` writes)."""
-    from ipc_taichi import TabulatedLaw, donlon2018
 
     return TabulatedLaw.from_callable(donlon2018().alpha, (0.0, 65535.0), n=n,
                                       name=f"table{n}")
@@ -133,7 +133,6 @@ def _time_decouple(groups, truth, law, info, repeats, warm_start=False, step=Non
     before each run, interleaved, and ``vs_jwst_interleaved`` is the ratio of
     the two medians: on a machine shared with other work both see the same
     load."""
-    import ipc_taichi
 
     b = NIRCAM_BORDER
     science = (slice(None), slice(b, -b), slice(b, -b))
@@ -159,7 +158,6 @@ def _time_decouple(groups, truth, law, info, repeats, warm_start=False, step=Non
 def _law_rows(size, nints, ngroups, alpha, seed, repeats, step, jwst_s):
     """Issue 28's rows in f32 (see the module docstring), each with ``vs_jwst``
     (against the step's first timing, ``jwst_s``) and ``vs_jwst_interleaved``."""
-    import ipc_taichi
 
     info = ipc_taichi.init(precision="f32")
     rows = []
@@ -181,8 +179,6 @@ def _general(size, repeats):
     """The general law (``donlon2018``) on a ``size`` x ``size`` f32 frame:
     seconds per iteration (5 iterations less 1, so that the per-call work
     cancels) against the streaming floor measured here, one NumPy copy."""
-    import ipc_taichi
-    from ipc_taichi.datasets import uniform_frame
 
     info = ipc_taichi.init(precision="f32")
     measured = ipc_taichi.couple(uniform_frame(size).astype(np.float32))
