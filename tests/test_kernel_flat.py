@@ -1,6 +1,6 @@
 """The step kernels on flat host arrays (``KernelConfig.flat``: 1-D, indexed
 ``row * width + column``, the table read the same way) against the same kernels
-on 2-D Taichi ndarrays (the device path, ``_engine.FORCE_DEVICE_BUFFERS``):
+on 2-D Taichi ndarrays (the device path, ``engine.device_buffers``):
 bit for bit, on every recorded case of ``tests/kernel_reference.py`` (nearest
 and anisotropic + diagonal + second-neighbour geometry, the isolated edge, a
 constant and a tabulated law, a NaN pixel, a mask), so that the recorded bytes
@@ -11,18 +11,18 @@ import numpy as np
 import pytest
 
 import ipc_taichi
-from ipc_taichi import TabulatedLaw, _engine
-from ipc_taichi._kernels import KernelConfig, StepPlan
+from ipc_taichi import TabulatedLaw, engine
+from ipc_taichi.engine import KernelConfig, StepPlan
 from tests import kernel_reference
 
 
 def _run(case, masked, device_buffers, monkeypatch):
-    monkeypatch.setattr(_engine, "FORCE_DEVICE_BUFFERS", device_buffers)
-    _engine.clear_workspaces()
+    engine.clear_workspaces()
     truth, mask = kernel_reference.frames()
     kw = dict(mask=mask if masked else None, **case)
-    measured = ipc_taichi.couple(truth, **kw)
-    signal, infos = ipc_taichi.decouple(measured, full_output=True, **kw)
+    with engine.device_buffers(device_buffers):
+        measured = ipc_taichi.couple(truth, **kw)
+        signal, infos = ipc_taichi.decouple(measured, full_output=True, **kw)
     return measured, signal, [i.max_delta for i in infos]
 
 
@@ -34,7 +34,7 @@ def test_flat_host_arrays_bit_identical_to_device_arrays(cpu, monkeypatch, name,
         flat = _run(case, masked, False, monkeypatch)
         nested = _run(case, masked, True, monkeypatch)
     finally:
-        _engine.clear_workspaces()
+        engine.clear_workspaces()
     for a, b in zip(flat[:2], nested[:2]):
         assert np.array_equal(np.asarray(a), np.asarray(b), equal_nan=True)
     assert flat[2] == nested[2]  # the stopping-rule maxima, iteration by iteration

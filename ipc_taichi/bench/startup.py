@@ -17,6 +17,11 @@ import sys
 import tempfile
 import time
 
+from astropy.io import fits
+
+from ..datasets import uniform_frame
+from ..reference import couple_reference
+
 __all__ = ["measure_startup", "STARTUP_SIZE", "TARGETS_S"]
 
 STARTUP_SIZE = 64
@@ -52,11 +57,6 @@ def measure_startup(repeats=5, size=STARTUP_SIZE):
     and a row for the summary line. The arch is ``$IPC_TAICHI_ARCH`` (default
     ``auto``).
     """
-    from astropy.io import fits
-
-    from ..datasets import uniform_frame
-    from ..reference import couple_reference
-
     load = os.getloadavg()
     helps, decouples = [], []
     with tempfile.TemporaryDirectory(prefix="ipc-startup-") as work:
