@@ -32,8 +32,8 @@ def test_round_trip_float32_big_endian(tmp_path, rng):
               shot_noise=False, dtype=np.float32)
     lab = read_lab(path)
     assert (lab.readnoise, lab.shot_noise, lab.law) == (11.5, False, "constant:0.01")
-    assert [v for v, _, _ in lab.pairs] == [1, 2]
-    ver, s, m = lab.pairs[1]
+    assert [p.extver for p in lab.pairs] == [1, 2]
+    s, m = lab.pairs[1].scene, lab.pairs[1].measured
     assert s.dtype == np.float64 and s.dtype.isnative
     np.testing.assert_array_equal(s, scene.astype(np.float64) * 2)
     assert np.isnan(m[3, 4]) and np.isfinite(m).sum() == m.size - 1
@@ -103,9 +103,9 @@ def test_simulate_lab_cli_hides_the_truth(tmp_path):
                  "--size", "64x80", "--pairs", "3", "--readnoise", "15", "--float32",
                  "--nan-fraction", "0.01"]) == 0
     lab = read_lab(str(out))
-    assert len(lab.pairs) == 3 and lab.pairs[0][1].shape == (64, 80)
+    assert len(lab.pairs) == 3 and lab.pairs[0].scene.shape == (64, 80)
     assert lab.readnoise == 15.0 and lab.law == "donlon2018"
-    frac = np.mean([np.isnan(m).mean() for _, _, m in lab.pairs])
+    frac = np.mean([np.isnan(p.measured).mean() for p in lab.pairs])
     assert 0.005 < frac < 0.015
     with fits.open(out) as h:
         text = repr(h[0].header) + "".join(repr(x.header) for x in h[1:])
