@@ -15,6 +15,7 @@ from ipc_taichi.discover.effects import brighter_fatter, diffuse, implausible
 from ipc_taichi.discover.gates import mean_misfit
 from ipc_taichi.discover.sampling import block_sum, boundary_arrivals, isolated_points
 from ipc_taichi.errors import IPCInputError
+from tests.discover_helpers import write_hdus
 
 
 def _fine(pixels, n):
@@ -23,17 +24,9 @@ def _fine(pixels, n):
 
 
 def _write(path, scene, measured, **scene_header):
-    hdus = [fits.PrimaryHDU()]
-    hdus[0].header["READNOIS"] = 10.0
-    for name, data in (("SCENE", scene), ("MEASURED", measured)):
-        h = fits.ImageHDU(data, name=name)
-        h.header["EXTVER"] = 1
-        if name == "SCENE":
-            for key, value in scene_header.items():
-                h.header[key] = value
-        hdus.append(h)
-    fits.HDUList(hdus).writeto(path)
-    return str(path)
+    """One pair, READNOIS 10, ``scene_header`` in the SCENE's header."""
+    return write_hdus(path, [("SCENE", 1, scene, scene_header), ("MEASURED", 1, measured)],
+                      READNOIS=10.0)
 
 
 def test_oversampled_round_trip_and_mixed_pairs(tmp_path, rng):
