@@ -21,6 +21,7 @@ def test_null_file_names_nothing(tmp_path_factory):
 SILICON_CENTRE = -1.01e-6
 
 
+@pytest.mark.slow  # GalSim's photon shooting with moving boundaries: 17 s of CPU
 def test_peer_silicon_brighter_fatter(tmp_path_factory):
     # GalSim's SiliconSensor: pixel boundaries moved by the field of the charge
     # already collected (no diffusion); our form must fit it to the floor, and

@@ -5,7 +5,9 @@ variance held fixed; noise parameters (:func:`fit_noise`) by the Gaussian
 likelihood with the mean held fixed. :func:`refit_all` alternates the two;
 :func:`prune` drops an effect whose work a later one does; :func:`fit_candidate`
 fits one effect of the vocabulary (with its near-degenerate partners already
-in the model) and returns its evidence, ``delta BIC = -2 delta lnL - k ln n``.
+in the model) and returns its evidence, ``delta BIC = -2 delta lnL - k ln n``
+(a :class:`Trial`); :func:`join` refits a named candidate with the rest of
+the model and lets go what it replaces (a :class:`Joined`).
 
 Uncertainties are from the Gauss-Newton covariance ``(J^T J)^-1`` of the
 whitened residuals, inflated by the reduced chi-square when it exceeds 1
@@ -301,7 +303,8 @@ def only_with_smooth_light(frames, model, threshold=EVIDENCE_THRESHOLD):
 
     Returns ``[(effect, params under the uniform picture, delta BIC of
     keeping it there)]``; empty when every SCENE is oversampled or the model
-    has no shift (the two pictures are then the same model).
+    has no shift (the two pictures are then the same model). The report's
+    words for such an effect are :data:`FRAGILE`.
     """
     if "misregistration" not in model.effects or all(b.oversample > 1 for b in frames.blocks):
         return []
