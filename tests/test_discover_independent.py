@@ -7,89 +7,67 @@ import numpy as np
 import pytest
 
 from ipc_taichi.brighterfatter import kernel_plausibility
-from ipc_taichi.discover import discover
-from tests.independent import peerlab  # noqa: E402  (GalSim: listed for the test extra)
+from tests.discover_helpers import SILICON_BF, assert_complete, final, peer_report
 
 
-def _run(tmp_path, seed, **hidden):
-    path = str(tmp_path / "peer.fits")
-    peerlab.make_file(path, seed=seed, **hidden)
-    return discover(path).report
-
-
-def _complete(report):
-    floor, sigma = report["gap_floor"], report["gap_floor_sigma"]
-    assert report["complete"] is True and report["unexplained"] == [], report["unexplained"]
-    assert abs(report["final_gap"] - floor) <= 3 * sigma
-    for step in report["steps"]:
-        assert step["explained_fraction"] >= 0.25
-
-
-def _final(report, effect):
-    return report["final_model"]["effects"][effect], report["final_model"]["uncertainties"][effect]
-
-
-def test_null_file_names_nothing(tmp_path):
-    report = _run(tmp_path, 31, n=64)
+def test_null_file_names_nothing(tmp_path_factory):
+    report = peer_report(tmp_path_factory, seed=31, n=64)
     assert report["missing_effects"] == []
-    _complete(report)
+    assert_complete(report)
 
 
-# GalSim's SiliconSensor recomputes the pixel boundaries every ``nrecalc``
-# photons: at 100000 a hot pixel of up to 60 ke- (drawn alone) never sees its
-# own charge, an isolated pixel without brighter-fatter; at 10000 a 50 ke-
-# spot loses 2.1 % of its charge (2.6 % with every photon), as a real sensor does
-SILICON_BF = {"strength": 1.0, "diffusion_factor": 0.0, "nrecalc": 10000}
 # GalSim's sensor's own kernel centre, measured with the area picture
 # (ipc_taichi.brighterfatter; docs/discover.md), per electron
 SILICON_CENTRE = -1.01e-6
 
 
-def test_peer_silicon_brighter_fatter(tmp_path):
+@pytest.mark.slow  # GalSim's photon shooting with moving boundaries: 17 s of CPU
+def test_peer_silicon_brighter_fatter(tmp_path_factory):
     # GalSim's SiliconSensor: pixel boundaries moved by the field of the charge
     # already collected (no diffusion); our form must fit it to the floor, and
     # its kernel must be a real detector's, with the sensor's own centre term
-    report = _run(tmp_path, 21, n=48, levels=(15000.0, 40000.0), silicon=SILICON_BF)
+    report = peer_report(tmp_path_factory, seed=21, n=48, levels=(15000.0, 40000.0),
+                         silicon=SILICON_BF)
     assert report["missing_effects"] == ["brighter_fatter"]
-    params, _ = _final(report, "brighter_fatter")
+    params, _ = final(report, "brighter_fatter")
     assert params["deflection_x_at_50ke"] > 0.005 and params["deflection_y_at_50ke"] > 0.005
     kernel = np.array(report["brighter_fatter"]["kernel"])
     error = np.array(report["brighter_fatter"]["kernel_error"])
     assert kernel_plausibility(kernel, error) is None
     # measured -0.97e-6 +- 0.18e-6; the hot pixels here see 80 % of their own field
     assert kernel[2, 2] == pytest.approx(SILICON_CENTRE, rel=0.35)
-    _complete(report)
+    assert_complete(report)
 
 
-def test_diffusion_and_squared_charge_brighter_fatter_both_named(tmp_path):
+def test_diffusion_and_squared_charge_brighter_fatter_both_named(tmp_path_factory):
     # Monte Carlo diffusion of every electron (charge generated across the
     # pixel) and a flow driven by the difference of squared charges (an
     # isolated 50 ke- pixel loses 4 %): both named, the blur width unbiased
-    report = _run(tmp_path, 20, n=64, mc_diffusion=0.2, squares_bf=0.04)
+    report = peer_report(tmp_path_factory, seed=20, n=64, mc_diffusion=0.2, squares_bf=0.04)
     assert sorted(report["missing_effects"]) == ["brighter_fatter", "charge_diffusion"]
-    diff, diff_err = _final(report, "charge_diffusion")
+    diff, diff_err = final(report, "charge_diffusion")
     assert abs(diff["sigma_px"] - 0.2) < max(3 * diff_err["sigma_px"], 0.01)
-    bf, _ = _final(report, "brighter_fatter")
+    bf, _ = final(report, "brighter_fatter")
     loss = 0.5 * (bf["deflection_x_at_50ke"] + bf["deflection_y_at_50ke"])
     assert loss == pytest.approx(0.04, rel=0.2)
-    _complete(report)
+    assert_complete(report)
 
 
-def test_peer_reciprocity_failure(tmp_path):
+def test_peer_reciprocity_failure(tmp_path_factory):
     # GalSim's addReciprocityFailure: the response rises above linear. It
     # must not come out as a non-linearity with a negative deficit.
-    report = _run(tmp_path, 22, n=64, reciprocity_alpha=0.01)
+    report = peer_report(tmp_path_factory, seed=22, n=64, reciprocity_alpha=0.01)
     assert report["missing_effects"] == ["reciprocity_failure"]
-    params, errors = _final(report, "reciprocity_failure")
+    params, errors = final(report, "reciprocity_failure")
     assert abs(params["alpha_per_decade"] - 0.01) < 3 * errors["alpha_per_decade"] + 5e-4
-    _complete(report)
+    assert_complete(report)
 
 
-def test_misregistration_is_found_first(tmp_path):
+def test_misregistration_is_found_first(tmp_path_factory):
     # MEASURED made from a sky redrawn 0.3 px to the right of its SCENE
-    report = _run(tmp_path, 25, n=64, sky=True, shift=(0.0, 0.3))
+    report = peer_report(tmp_path_factory, seed=25, n=64, sky=True, shift=(0.0, 0.3))
     assert report["missing_effects"][0] == "misregistration"
-    params, _ = _final(report, "misregistration")
+    params, _ = final(report, "misregistration")
     assert params["shift_x_px"] == pytest.approx(0.3, abs=0.01)
     assert abs(params["shift_y_px"]) < 0.01
     assert report["missing_effects"] == ["misregistration"]
@@ -100,10 +78,10 @@ def test_misregistration_is_found_first(tmp_path):
     assert "limit of the data" in report["unexplained"][0]
 
 
-def test_persistence_is_reported_incomplete_not_misnamed(tmp_path):
+def test_persistence_is_reported_incomplete_not_misnamed(tmp_path_factory):
     # GalSim's applyPersistence: 1 % of the previous pair's charge; no name
     # in the vocabulary fits, so the honest verdict is "incomplete"
-    report = _run(tmp_path, 3, n=64, persistence=(0.01,))
+    report = peer_report(tmp_path_factory, seed=3, n=64, persistence=(0.01,))
     assert report["complete"] is False
     assert report["final_gap"] - report["gap_floor"] > 3 * report["gap_floor_sigma"]
     assert any("after-image" in u for u in report["unexplained"]), report["unexplained"]

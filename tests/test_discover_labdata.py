@@ -9,18 +9,7 @@ from ipc_taichi.cli import main
 from ipc_taichi.discover import make_scene, read_lab, write_lab
 from ipc_taichi.discover.labdata import FLAT_LEVELS
 from ipc_taichi.errors import IPCInputError
-
-
-def _write(path, pairs, **header):
-    hdus = [fits.PrimaryHDU()]
-    for key, value in header.items():
-        hdus[0].header[key] = value
-    for name, ver, data in pairs:
-        h = fits.ImageHDU(data, name=name)
-        h.header["EXTVER"] = ver
-        hdus.append(h)
-    fits.HDUList(hdus).writeto(path)
-    return str(path)
+from tests.discover_helpers import write_hdus
 
 
 def test_round_trip_float32_big_endian(tmp_path, rng):
@@ -32,8 +21,8 @@ def test_round_trip_float32_big_endian(tmp_path, rng):
               shot_noise=False, dtype=np.float32)
     lab = read_lab(path)
     assert (lab.readnoise, lab.shot_noise, lab.law) == (11.5, False, "constant:0.01")
-    assert [v for v, _, _ in lab.pairs] == [1, 2]
-    ver, s, m = lab.pairs[1]
+    assert [p.extver for p in lab.pairs] == [1, 2]
+    s, m = lab.pairs[1].scene, lab.pairs[1].measured
     assert s.dtype == np.float64 and s.dtype.isnative
     np.testing.assert_array_equal(s, scene.astype(np.float64) * 2)
     assert np.isnan(m[3, 4]) and np.isfinite(m).sum() == m.size - 1
@@ -43,7 +32,7 @@ def test_round_trip_float32_big_endian(tmp_path, rng):
 
 def test_defaults_shotnois_and_ipclaw(tmp_path):
     a = np.ones((8, 8))
-    lab = read_lab(_write(tmp_path / "d.fits", [("SCENE", 1, a), ("MEASURED", 1, a)],
+    lab = read_lab(write_hdus(tmp_path / "d.fits", [("SCENE", 1, a), ("MEASURED", 1, a)],
                           READNOIS=10.0))
     assert lab.shot_noise is True and lab.law == "donlon2018"
 
@@ -72,7 +61,7 @@ def test_bad_input_names_the_hdu(tmp_path, case, match, capsys):
         pairs[1] = ("MEASURED", 1, np.full((8, 8), np.nan))
     elif case == "cube":
         pairs[0] = ("SCENE", 1, np.ones((2, 8, 8)))
-    path = _write(tmp_path / "bad.fits", pairs, **header)
+    path = write_hdus(tmp_path / "bad.fits", pairs, **header)
     with pytest.raises(IPCInputError, match=match):
         read_lab(path)
     # the command line: exit status 2, one line naming the HDU, no report written
@@ -103,9 +92,9 @@ def test_simulate_lab_cli_hides_the_truth(tmp_path):
                  "--size", "64x80", "--pairs", "3", "--readnoise", "15", "--float32",
                  "--nan-fraction", "0.01"]) == 0
     lab = read_lab(str(out))
-    assert len(lab.pairs) == 3 and lab.pairs[0][1].shape == (64, 80)
+    assert len(lab.pairs) == 3 and lab.pairs[0].scene.shape == (64, 80)
     assert lab.readnoise == 15.0 and lab.law == "donlon2018"
-    frac = np.mean([np.isnan(m).mean() for _, _, m in lab.pairs])
+    frac = np.mean([np.isnan(p.measured).mean() for p in lab.pairs])
     assert 0.005 < frac < 0.015
     with fits.open(out) as h:
         text = repr(h[0].header) + "".join(repr(x.header) for x in h[1:])

@@ -15,6 +15,7 @@ from ipc_taichi.discover.effects import brighter_fatter, diffuse, implausible
 from ipc_taichi.discover.gates import mean_misfit
 from ipc_taichi.discover.sampling import block_sum, boundary_arrivals, isolated_points
 from ipc_taichi.errors import IPCInputError
+from tests.discover_helpers import write_hdus
 
 
 def _fine(pixels, n):
@@ -23,17 +24,9 @@ def _fine(pixels, n):
 
 
 def _write(path, scene, measured, **scene_header):
-    hdus = [fits.PrimaryHDU()]
-    hdus[0].header["READNOIS"] = 10.0
-    for name, data in (("SCENE", scene), ("MEASURED", measured)):
-        h = fits.ImageHDU(data, name=name)
-        h.header["EXTVER"] = 1
-        if name == "SCENE":
-            for key, value in scene_header.items():
-                h.header[key] = value
-        hdus.append(h)
-    fits.HDUList(hdus).writeto(path)
-    return str(path)
+    """One pair, READNOIS 10, ``scene_header`` in the SCENE's header."""
+    return write_hdus(path, [("SCENE", 1, scene, scene_header), ("MEASURED", 1, measured)],
+                      READNOIS=10.0)
 
 
 def test_oversampled_round_trip_and_mixed_pairs(tmp_path, rng):
@@ -42,13 +35,13 @@ def test_oversampled_round_trip_and_mixed_pairs(tmp_path, rng):
     path = str(tmp_path / "os.fits")
     write_lab(path, [(fine, measured), (measured, measured)], 10.0, oversample=[3, 1])
     lab = read_lab(path)
-    assert lab.oversample == [3, 1]
-    np.testing.assert_array_equal(lab.pairs[0][1], fine)
+    assert [p.oversample for p in lab.pairs] == [3, 1]
+    np.testing.assert_array_equal(lab.pairs[0].scene, fine)
     with fits.open(path) as h:
         assert h["SCENE", 1].header["OVERSAMP"] == 3 and "OVERSAMP" not in h["SCENE", 2].header
     # OVERSAMP = 1 written out is the same as no keyword
     one = read_lab(_write(tmp_path / "one.fits", measured, measured, OVERSAMP=1))
-    assert one.oversample == [1]
+    assert one.pairs[0].oversample == 1
 
 
 @pytest.mark.parametrize("header, data, match", [
@@ -80,10 +73,11 @@ def test_nan_sub_pixel_marks_its_pixel_bad(tmp_path):
     measured = np.full((20, 20), 16.0)
     frames = PairBlocks.from_lab(read_lab(_write(tmp_path / "nan.fits", fine, measured,
                                                  OVERSAMP=2)))
-    assert frames.oversample == [2] and frames.sources[0].shape == (1, 40, 40)
-    assert np.isfinite(frames.sources[0]).all()
-    assert not frames.valid[0][0, 10, 11] and frames.valid[0][0, 10, 5]
-    assert frames.scenes[0][0, 10, 5] == 16.0
+    [block] = frames.blocks
+    assert block.oversample == 2 and block.source.shape == (1, 40, 40)
+    assert np.isfinite(block.source).all()
+    assert not block.valid[0, 10, 11] and block.valid[0, 10, 5]
+    assert block.scenes[0, 10, 5] == 16.0
 
 
 def test_block_sum_and_boundary_arrivals(rng):
@@ -200,8 +194,9 @@ def test_make_scene_and_simulate_lab_oversampled(tmp_path):
     path = str(tmp_path / "lab.fits")
     simulate_lab(path, {"charge_diffusion": 0.2}, seed=2, pairs=1, shape=(64, 64), oversample=3)
     lab = read_lab(path)
-    assert lab.oversample == [3] and lab.pairs[0][1].shape == (192, 192)
-    assert lab.pairs[0][2].shape == (64, 64)
+    [pair] = lab.pairs
+    assert pair.oversample == 3 and pair.scene.shape == (192, 192)
+    assert pair.measured.shape == (64, 64)
 
 
 def test_physical_range_and_mean_misfit_gates(rng):
@@ -240,8 +235,9 @@ def test_simulate_lab_cli_oversample_and_model_file(tmp_path, cli):
                "--model", model_file)
     assert done.returncode == 0 and "IPCLAW constant:0.011" in done.stdout, done.stderr
     lab = read_lab(out)
-    assert lab.law == "constant:0.011" and lab.oversample == [3]
-    assert lab.pairs[0][1].shape == (192, 192) and lab.pairs[0][2].shape == (64, 64)
+    [pair] = lab.pairs
+    assert lab.law == "constant:0.011" and pair.oversample == 3
+    assert pair.scene.shape == (192, 192) and pair.measured.shape == (64, 64)
     # the starting model of discover --model: the file's coupling as effects
     start = DetectorModel.from_coupling(CouplingModel.load(model_file), 12.0)
     assert start.effects == {"diagonal_ipc": {"alpha_diag": pytest.approx(0.0011)}}

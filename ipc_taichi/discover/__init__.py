@@ -7,9 +7,9 @@ and :func:`simulate_lab` (the data generator).
 """
 
 from .effects import EFFECT_NAMES, EFFECTS
-from .labdata import LabData, make_scene, read_lab, simulate_lab, write_lab
+from .labdata import LabData, LabPair, make_scene, read_lab, simulate_lab, write_lab
 from .model import CHAIN_ORDER, DetectorModel
 from .search import Discovery, discover
 
 __all__ = ["discover", "Discovery", "DetectorModel", "CHAIN_ORDER", "EFFECTS", "EFFECT_NAMES",
-           "LabData", "read_lab", "write_lab", "make_scene", "simulate_lab"]
+           "LabData", "LabPair", "read_lab", "write_lab", "make_scene", "simulate_lab"]

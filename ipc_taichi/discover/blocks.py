@@ -13,11 +13,24 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import IPCInputError
-from .diagnostics import fill_scene, gap, residual, residual_vs_signal, valid_mask
+from .diagnostics import (
+    after_images,
+    dipoles,
+    fill_scene,
+    find_probes,
+    gap,
+    pair_correlation,
+    probe_masks,
+    residual,
+    residual_vs_signal,
+    residuals_by_probe,
+    stacked_windows,
+    valid_mask,
+)
 from .model import SUBPIXEL_EFFECTS
 from .sampling import block_sum
 
-__all__ = ["PairBlocks", "deviance"]
+__all__ = ["PairBlocks", "Block", "deviance"]
 
 
 def deviance(residuals, variances, scales, valids, response_variance):
@@ -47,50 +60,82 @@ def deviance(residuals, variances, scales, valids, response_variance):
     return total
 
 
-@dataclass
-class PairBlocks:
-    """Prepared data: pairs of one shape and one SCENE sampling stacked into
-    3-D blocks.
+@dataclass(frozen=True)
+class Block:
+    """The pairs of one shape and one SCENE sampling, stacked ``(K, ny, nx)``.
 
     ``scenes`` holds the pixels' totals (what the diagnostics look at),
-    ``sources`` what the model is given: the sub-pixel SCENE where the file
-    has one (``oversample`` > 1), else the same array as ``scenes``.
+    ``source`` what the model is given: the sub-pixel SCENE, ``(K, N ny, N
+    nx)``, where ``oversample`` ``N`` > 1, else the same array as ``scenes``;
+    ``measured`` is 0 outside ``valid``.
     """
 
-    scenes: list
-    measured: list
-    valid: list
-    n: int
-    sources: list = None
-    oversample: list = None
+    scenes: np.ndarray
+    measured: np.ndarray
+    valid: np.ndarray
+    source: np.ndarray
+    oversample: int = 1
 
-    def __post_init__(self):
-        if self.sources is None:
-            self.sources = list(self.scenes)
-        if self.oversample is None:
-            self.oversample = [1] * len(self.scenes)
+
+@dataclass
+class PairBlocks:
+    """Prepared data: the pairs of a lab file as :class:`Block` records, and
+    ``n``, the number of valid pixels in all of them."""
+
+    blocks: list
+    n: int
 
     @classmethod
     def from_lab(cls, lab):
         groups = {}
-        for (ver, scene, measured), n in zip(lab.pairs, lab.oversample):
+        for pair in lab.pairs:
             # a NaN sub-pixel makes its pixel's total NaN: a bad scene pixel
-            total = block_sum(scene, n)
-            valid = valid_mask(total, measured)
+            total = block_sum(pair.scene, pair.oversample)
+            valid = valid_mask(total, pair.measured)
             if not valid.any():
-                raise IPCInputError(f"{lab.path}[MEASURED,{ver}]: no valid pixel left after "
-                                    "masking NaNs and the border")
-            filled = fill_scene(scene)
-            groups.setdefault((measured.shape, n), []).append(
-                (block_sum(filled, n), np.where(valid, measured, 0.0), valid, filled))
-        scenes, measured, valid, sources, factors = [], [], [], [], []
+                raise IPCInputError(f"{lab.path}[MEASURED,{pair.extver}]: no valid pixel left "
+                                    "after masking NaNs and the border")
+            filled = fill_scene(pair.scene)
+            groups.setdefault((pair.measured.shape, pair.oversample), []).append(
+                (block_sum(filled, pair.oversample), np.where(valid, pair.measured, 0.0), valid,
+                 filled))
+        blocks = []
         for (_, n), items in groups.items():
-            scenes.append(np.stack([s for s, _, _, _ in items]))
-            measured.append(np.stack([m for _, m, _, _ in items]))
-            valid.append(np.stack([v for _, _, v, _ in items]))
-            sources.append(scenes[-1] if n == 1 else np.stack([f for _, _, _, f in items]))
-            factors.append(n)
-        return cls(scenes, measured, valid, int(sum(v.sum() for v in valid)), sources, factors)
+            scenes, measured, valid, filled = (np.stack(a) for a in zip(*items))
+            blocks.append(Block(scenes, measured, valid, scenes if n == 1 else filled, n))
+        return cls(blocks, int(sum(b.valid.sum() for b in blocks)))
+
+    def probes(self):
+        """Per frame (blocks in order) the probes of its SCENE
+        (:func:`~.diagnostics.find_probes`) and their masks
+        (:func:`~.diagnostics.probe_masks`), as ``(probes, masks)``."""
+        probes, masks = [], []
+        for b in self.blocks:
+            for s, v in zip(b.scenes, b.valid):
+                probes.append(find_probes(s, v))
+                masks.append(probe_masks(s, v, probes[-1]))
+        return probes, masks
+
+    def diagnostics(self, model, probes, masks, parts=None):
+        """What the report and the figures show of ``model``'s residuals
+        (``probes`` and ``masks`` those of :meth:`probes`): the residual maps
+        and means, the stacked windows, the residual and chi-square against
+        signal, the gap, the residuals by probe, dipoles, after-images and the
+        correlation between pairs."""
+        res, means = self.residuals(model, parts)
+        stacks, counts = stacked_windows(res, probes)
+        centres, mean_r, mean_r2, n = residual_vs_signal(res, means)
+        per_block, i = [], 0
+        for b in self.blocks:
+            per_block.append(res[i:i + len(b.scenes)])
+            i += len(b.scenes)
+        return {"residuals": res, "means": means, "stacks": stacks, "counts": counts,
+                "signal": centres, "mean_residual": mean_r, "mean_residual2": mean_r2,
+                "signal_counts": n, "gap": gap(res), "by_probe": residuals_by_probe(res, masks),
+                "dipoles": dipoles(res, probes),
+                "after_images": after_images(per_block, [b.scenes for b in self.blocks],
+                                             [b.valid for b in self.blocks]),
+                "pair_correlation": pair_correlation(per_block)}
 
     def inputs(self, model):
         """Per block what ``model`` is given, ``(scene, oversample)``: the
@@ -98,8 +143,8 @@ class PairBlocks:
         (:data:`~.model.SUBPIXEL_EFFECTS`); otherwise the pixels' totals, the
         same numbers at a 25th of the work for ``N = 5``."""
         if not SUBPIXEL_EFFECTS & set(model.effects):
-            return [(s, 1) for s in self.scenes]
-        return list(zip(self.sources, self.oversample))
+            return [(b.scenes, 1) for b in self.blocks]
+        return [(b.source, b.oversample) for b in self.blocks]
 
     def predict(self, model):
         """Per block ``(mean, independent variance, response scale)``
@@ -115,17 +160,16 @@ class PairBlocks:
     def whitened(self, model, sds):
         """Residual vector ``(M - mean) / sd`` over valid pixels, ``sds`` fixed."""
         out = []
-        for (s, n), m, v, sd in zip(self.inputs(model), self.measured, self.valid, sds):
-            out.append(((m - model.expected(s, n)) / sd)[v])
+        for (s, n), b, sd in zip(self.inputs(model), self.blocks, sds):
+            out.append(((b.measured - model.expected(s, n)) / sd)[b.valid])
         return np.concatenate(out)
 
     def residuals(self, model, parts=None):
         """Per-frame residual maps (NaN outside valid) and expected means."""
         parts = parts or self.predict(model)
         res, means = [], []
-        for (mean, _, _), var, m, v in zip(parts, self.total_variance(model, parts),
-                                           self.measured, self.valid):
-            res.extend(residual(m, mean, var, v))
+        for (mean, _, _), var, b in zip(parts, self.total_variance(model, parts), self.blocks):
+            res.extend(residual(b.measured, mean, var, b.valid))
             means.extend(mean)
         return res, means
 
@@ -134,9 +178,9 @@ class PairBlocks:
         the response and read variances may be overridden (noise-effect fits)."""
         u = model.response_variance() if response_variance is None else response_variance
         shift = 0.0 if read_variance is None else read_variance - model.read_variance()
-        return deviance([m - mean for (mean, _, _), m in zip(parts, self.measured)],
+        return deviance([b.measured - mean for (mean, _, _), b in zip(parts, self.blocks)],
                         [var + shift for _, var, _ in parts], [a for _, _, a in parts],
-                        self.valid, u)
+                        [b.valid for b in self.blocks], u)
 
     def floor(self, model, rng, n_sim, parts=None):
         """Gap of ``n_sim`` fresh simulations of ``model`` against its own prediction.
@@ -148,9 +192,9 @@ class PairBlocks:
         gaps, per_bin = [], []
         for _ in range(n_sim):
             res, means = [], []
-            for (s, n), v, (mean, _, _), var in zip(self.inputs(model), self.valid, parts,
+            for (s, n), b, (mean, _, _), var in zip(self.inputs(model), self.blocks, parts,
                                                     variances):
-                res.extend(residual(model.simulate(s, rng, n), mean, var, v))
+                res.extend(residual(model.simulate(s, rng, n), mean, var, b.valid))
                 means.extend(mean)
             gaps.append(gap(res))
             per_bin.append(residual_vs_signal(res, means)[2])

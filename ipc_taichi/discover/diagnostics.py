@@ -35,11 +35,12 @@ from scipy import ndimage
 
 __all__ = ["BORDER", "SIGNAL_BINS", "PROBE_TYPES", "valid_mask", "fill_scene", "residual", "gap",
            "find_probes", "stacked_windows", "residual_vs_signal", "probe_masks",
-           "residuals_by_probe", "dipoles", "after_images", "pair_correlation"]
+           "residuals_by_probe", "dipoles", "after_images", "pair_correlation", "UNEXPLAINED_Z"]
 
 BORDER = 3
 SIGNAL_BINS = (1000.0, 4000.0, 12000.0, 30000.0, 1e9)  # e-: peak-signal bins of the stacks
 WINDOW = 2  # half-size of the stacked window (5x5)
+UNEXPLAINED_Z = 5.0  # a pattern stands out (is described, refuses a name) at 5 sigma
 
 
 def valid_mask(scene, measured, border=BORDER):

@@ -70,6 +70,7 @@ from ..brighterfatter import (
     kernel_plausibility,
 )
 from ..laws import donlon2018
+from .sampling import block_sum_axis
 
 __all__ = ["Param", "Effect", "EFFECTS", "EFFECT_NAMES", "SEPARATION", "DEGENERATE",
            "diffuse", "diffusion_weights", "brighter_fatter", "nonlinearity", "reciprocity",
@@ -330,8 +331,6 @@ def diffuse(charge, sigma_px, at_centre=False, collect=1):
     spread along y, which then works on a grid ``N`` times smaller.
     """
     from scipy.ndimage import convolve1d
-
-    from .sampling import block_sum_axis
 
     sigma = float(sigma_px)
     if sigma <= 0:

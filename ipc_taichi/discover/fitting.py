@@ -5,7 +5,9 @@ variance held fixed; noise parameters (:func:`fit_noise`) by the Gaussian
 likelihood with the mean held fixed. :func:`refit_all` alternates the two;
 :func:`prune` drops an effect whose work a later one does; :func:`fit_candidate`
 fits one effect of the vocabulary (with its near-degenerate partners already
-in the model) and returns its evidence, ``delta BIC = -2 delta lnL - k ln n``.
+in the model) and returns its evidence, ``delta BIC = -2 delta lnL - k ln n``
+(a :class:`Trial`); :func:`join` refits a named candidate with the rest of
+the model and lets go what it replaces (a :class:`Joined`).
 
 Uncertainties are from the Gauss-Newton covariance ``(J^T J)^-1`` of the
 whitened residuals, inflated by the reduced chi-square when it exceeds 1
@@ -20,14 +22,19 @@ from scipy.optimize import least_squares, minimize
 
 from ..errors import GeometryError, LawError
 from .blocks import PairBlocks
+from .diagnostics import gap
 from .effects import DEGENERATE, EFFECTS, derived_params
 from .model import DetectorModel, is_constant_law
 
-__all__ = ["FitResult", "fit_parameters", "fit_noise", "refit_all", "prune", "fit_candidate",
-           "full_evidence", "params_report", "sds_of", "chi2_of", "candidates", "partners",
-           "is_noise_effect", "only_with_smooth_light", "EVIDENCE_THRESHOLD"]
+__all__ = ["FitResult", "Trial", "Joined", "fit_parameters", "fit_noise", "refit_all", "prune",
+           "fit_candidate", "join", "full_evidence", "params_report", "sds_of", "chi2_of",
+           "candidates", "partners", "is_noise_effect", "only_with_smooth_light",
+           "EVIDENCE_THRESHOLD", "FRAGILE"]
 
 EVIDENCE_THRESHOLD = 25.0  # delta BIC; null simulations give < 0 (see docs/discover.md)
+# what an effect that only_with_smooth_light finds is (the report's words for it)
+FRAGILE = ("needed only while the pixel-total SCENE's light is taken as smooth across pixels "
+           "(the spline shift): it absorbs the error of that picture, not a detector effect")
 _FAILED = 1e6  # whitened residual returned for a parameter set the engine rejects
 
 
@@ -38,6 +45,11 @@ def is_noise_effect(name):
 
 @dataclass
 class FitResult:
+    """A fit: the fitted model, its chi-square (the deviance for noise
+    parameters), the fitted ``values`` and ``errors`` per ``(effect,
+    parameter)`` key, their covariance in ``keys`` order, and the number of
+    model evaluations."""
+
     model: DetectorModel
     chi2: float
     values: dict            # {(effect, param): value}
@@ -291,9 +303,10 @@ def only_with_smooth_light(frames, model, threshold=EVIDENCE_THRESHOLD):
 
     Returns ``[(effect, params under the uniform picture, delta BIC of
     keeping it there)]``; empty when every SCENE is oversampled or the model
-    has no shift (the two pictures are then the same model).
+    has no shift (the two pictures are then the same model). The report's
+    words for such an effect are :data:`FRAGILE`.
     """
-    if "misregistration" not in model.effects or all(n > 1 for n in frames.oversample):
+    if "misregistration" not in model.effects or all(b.oversample > 1 for b in frames.blocks):
         return []
     uniform = refit_all(frames, replace(model, within_pixel="uniform")).model
     return prune(frames, uniform, threshold)[1]
@@ -326,8 +339,20 @@ def full_evidence(frames, fitted, dev_now, k, ln_n):
     return dev_now - frames.deviance(fitted, frames.predict(fitted)) - k * ln_n
 
 
+@dataclass(frozen=True)
+class Trial:
+    """A candidate fitted (:func:`fit_candidate`): its ``evidence`` (delta BIC),
+    the drop ``delta`` of the chi-square (or deviance) it buys, its number of
+    new parameters ``n_params`` and the ``fit``."""
+
+    evidence: float
+    delta: float
+    n_params: int
+    fit: FitResult
+
+
 def fit_candidate(frames, model, name, parts, sds, chi2_now, dev_now, ln_n):
-    """Fit one candidate (with its near-degenerate partners); ``(evidence, delta, k, fit)``."""
+    """Fit one candidate (with its near-degenerate partners): a :class:`Trial`."""
     trial = model.with_effects({name: model.starting_params(name)})
     keys = [(name, p.name) for p in EFFECTS[name].params]
     k = len(keys)
@@ -338,5 +363,49 @@ def fit_candidate(frames, model, name, parts, sds, chi2_now, dev_now, ln_n):
     else:
         fit = fit_parameters(frames, trial, keys, sds)
         delta = chi2_now - fit.chi2
-    return delta - k * ln_n, delta, k, fit
+    return Trial(delta - k * ln_n, delta, k, fit)
+
+
+@dataclass(frozen=True)
+class Joined:
+    """A candidate joined to the model (:func:`join`): the joint refit
+    ``fit``, its prediction ``parts`` and gap ``gap_after``; ``dropped`` the
+    earlier effects whose work it now does and ``fragile`` those only the
+    smooth picture of pixel-total light needed, each ``(effect, params,
+    delta BIC of keeping it)``."""
+
+    fit: FitResult
+    parts: list
+    gap_after: float
+    dropped: tuple = ()
+    fragile: tuple = ()
+
+    @property
+    def gone(self):
+        """The names of the ``fragile`` effects."""
+        return {name for name, _, _ in self.fragile}
+
+
+def join(frames, model, name, threshold=EVIDENCE_THRESHOLD):
+    """``model`` (a candidate ``name``'s fit) with every parameter refitted
+    (:func:`refit_all`), less what that lets go: an earlier effect whose work
+    the newcomer now does (:func:`prune`: its parameters fall back to "off" or
+    to values the data no longer need), and with pixel-total scenes what only
+    the smooth picture of their light needs (:func:`only_with_smooth_light`;
+    when that is ``name`` itself, nothing is taken out). Returns a :class:`Joined`.
+    """
+    refit = refit_all(frames, model)
+    kept, dropped = prune(frames, refit.model, threshold, keep=(name,))
+    if dropped:
+        refit = refit_all(frames, kept)
+    fragile = only_with_smooth_light(frames, refit.model, threshold)
+    gone = {e for e, _, _ in fragile}
+    if fragile and name not in gone:
+        smooth = refit.model.effects
+        fragile = [(e, dict(smooth[e]), worth) for e, _, worth in fragile]
+        refit = refit_all(frames, replace(refit.model, effects={
+            e: p for e, p in smooth.items() if e not in gone}))
+    parts = frames.predict(refit.model)
+    return Joined(refit, parts, gap(frames.residuals(refit.model, parts)[0]), tuple(dropped),
+                  tuple(fragile))
 

@@ -29,33 +29,38 @@ from ..laws import get_law
 from .effects import EFFECTS
 from .model import DetectorModel
 
-__all__ = ["LabData", "read_lab", "write_lab", "make_scene", "simulate_lab", "effect_params",
-           "ipclaw", "FLAT_LEVELS"]
+__all__ = ["LabData", "LabPair", "read_lab", "write_lab", "make_scene", "simulate_lab",
+           "effect_params", "ipclaw", "FLAT_LEVELS"]
 
 FLAT_LEVELS = (3000.0, 10000.0, 20000.0, 35000.0, 50000.0)  # e-, one patch each per frame
 _CELL = 8  # px: scene elements sit one per cell, so they stay isolated
 
 
+@dataclass(frozen=True)
+class LabPair:
+    """One SCENE/MEASURED pair of a lab file.
+
+    ``scene`` and ``measured`` are float64 native-endian 2-D arrays (NaN = bad
+    pixel); ``oversample`` is the SCENE's ``OVERSAMP`` (1 when not given): a
+    SCENE of ``OVERSAMP = N`` has ``N`` times MEASURED's shape.
+    """
+
+    extver: int
+    scene: np.ndarray
+    measured: np.ndarray
+    oversample: int = 1
+
+
 @dataclass
 class LabData:
-    """A validated lab file: header values and the SCENE/MEASURED pairs.
-
-    ``pairs`` is a list of ``(extver, scene, measured)`` with float64
-    native-endian 2-D arrays (NaN = bad pixel); ``oversample`` the
-    ``OVERSAMP`` of each pair's SCENE, in the same order (all 1 when not
-    given): a SCENE of ``OVERSAMP = N`` has ``N`` times MEASURED's shape.
-    """
+    """A validated lab file: header values and its SCENE/MEASURED pairs
+    (:class:`LabPair`, in ``EXTVER`` order)."""
 
     path: str
     readnoise: float
     shot_noise: bool
     law: str
     pairs: list
-    oversample: list = None
-
-    def __post_init__(self):
-        if self.oversample is None:
-            self.oversample = [1] * len(self.pairs)
 
     def model(self):
         """The starting model the file's header describes."""
@@ -137,7 +142,7 @@ def read_lab(path):
     for a, b in (("SCENE", "MEASURED"), ("MEASURED", "SCENE")):
         for ver in sorted(set(frames[a]) - set(frames[b])):
             raise IPCInputError(f"{path}[{a},{ver}]: unpaired: no {b} HDU with EXTVER={ver}")
-    pairs, oversample = [], []
+    pairs = []
     for ver in sorted(scenes):
         (slabel, s, n), (mlabel, m, _) = scenes[ver], measured[ver]
         if n == 1 and s.shape != m.shape:
@@ -145,9 +150,8 @@ def read_lab(path):
         if s.shape != (n * m.shape[0], n * m.shape[1]):
             raise IPCInputError(f"{slabel}: shape {s.shape} is not OVERSAMP = {n} times {mlabel} "
                                 f"shape {m.shape}")
-        pairs.append((ver, s, m))
-        oversample.append(n)
-    return LabData(path, readnoise, shot_noise, law, pairs, oversample)
+        pairs.append(LabPair(ver, s, m, n))
+    return LabData(path, readnoise, shot_noise, law, pairs)
 
 
 def _oversamp(header, label):

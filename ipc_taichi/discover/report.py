@@ -1,7 +1,10 @@
 """The JSON report and the figures of a :class:`~.search.Discovery`.
 
-Both are written atomically (a temporary file renamed into place); the
-figures use matplotlib's Agg backend and need no display.
+:func:`assemble` puts the report together from the search's records
+(:mod:`.records`); :func:`describe_unexplained` gives the words of what the
+final model leaves. Report and figures are written atomically (a temporary
+file renamed into place); the figures use matplotlib's Agg backend and need
+no display.
 
 Figures (in the ``--figures`` directory)
 ----------------------------------------
@@ -31,17 +34,104 @@ import numpy as np
 from ..brighterfatter import isolated_loss
 from ..errors import IPCInputError
 from ..fitsio import atomic_output
-from .diagnostics import SIGNAL_BINS
-from .effects import bf_kernel
+from .diagnostics import SIGNAL_BINS, UNEXPLAINED_Z
+from .effects import EFFECTS, bf_kernel
+from .fitting import params_report
+from .gates import COMPLETE_SIGMAS, MIN_EXPLAINED_FRACTION, is_complete
+from .model import CHAIN_ORDER
 
-__all__ = ["write_report", "write_figures", "to_json", "summary_line", "json_diagnostics",
-           "describe_unexplained", "brighter_fatter_section", "SUBPIXEL_LIMITS",
-           "UNEXPLAINED_Z"]
-
-UNEXPLAINED_Z = 5.0  # a pattern is described when it stands out at 5 sigma
+__all__ = ["assemble", "write_report", "write_figures", "to_json", "summary_line",
+           "json_diagnostics", "describe_unexplained", "brighter_fatter_section",
+           "SUBPIXEL_LIMITS"]
 
 FIGURES = ("gap_per_step.png", "stacked_windows.png", "residual_vs_signal.png",
            "residual_map.png", "residuals_by_probe.png")
+
+
+def assemble(setting, state, stop, baseline, final, floor):
+    """The JSON-ready report of a search.
+
+    ``setting`` and ``state`` are the search's :class:`~.records.Setting` and
+    final :class:`~.records.State`, ``stop`` its :class:`~.records.Stop`
+    (``None`` when it ran out of steps), ``baseline`` and ``final`` the
+    diagnostics of the starting and final models
+    (:meth:`~.blocks.PairBlocks.diagnostics`), ``floor`` the final model's
+    ``(gap floor, its scatter)``.
+    """
+    lab, model = setting.lab, state.model
+    complete = is_complete(state.gap, *floor)
+    return {
+        **_head(setting),
+        "baseline_gap": baseline["gap"],
+        "gap_floor": floor[0],
+        "gap_floor_sigma": floor[1],
+        "floor_simulations": setting.floor_simulations,
+        "steps": [s.as_dict() for s in state.steps],
+        "missing_effects": [s.effect for s in state.steps if s.effect in model.effects],
+        "pruned": [p.as_dict() for p in state.pruned],
+        "final_gap": state.gap,
+        "complete": complete,
+        "unexplained": [] if complete else _unexplained(lab, state, final, floor),
+        "final_model": _final_model(model, state.fit, lab.readnoise),
+        "stop": None if stop is None else stop.as_dict(),
+        "brighter_fatter": _bf_report(state, setting.seeded),
+        "seeded_from_model_file": setting.seeded,
+        "evidence_threshold": {"delta_bic": setting.threshold,
+                               "min_explained_fraction": MIN_EXPLAINED_FRACTION,
+                               "complete_within_floor_sigmas": COMPLETE_SIGMAS},
+        "chain_order": list(CHAIN_ORDER),
+        "diagnostics": {"signal_bins": [b if b < 1e8 else None for b in SIGNAL_BINS],
+                        "n_probes": int(sum(len(p) for p in setting.probes)),
+                        "baseline": json_diagnostics(baseline), "final": json_diagnostics(final)},
+    }
+
+
+def _head(setting):
+    """What the report says about its input."""
+    lab = setting.lab
+    return {"input": lab.path, "readnoise": lab.readnoise, "shot_noise": lab.shot_noise,
+            "ipclaw": lab.law, "starting_model": setting.starting_model,
+            "gap_statistic": "mean over valid pixels of ((MEASURED - mean)/sd)^2, mean and sd "
+                             "the model's prediction of SCENE with shot and read noise "
+                             "propagated",
+            "n_pixels": setting.frames.n, "n_pairs": len(lab.pairs),
+            "oversample": {str(p.extver): p.oversample for p in lab.pairs}}
+
+
+def _unexplained(lab, state, final, floor):
+    """:func:`describe_unexplained` of the final model."""
+    pixel_totals = [p.extver for p in lab.pairs if p.oversample == 1]
+    below = (floor[0] - state.gap) / floor[1] if floor[1] > 0 else 0.0
+    return describe_unexplained(final, state.rejected, list(state.model.effects), pixel_totals,
+                                len(lab.pairs), below)
+
+
+def _final_model(model, fit, readnoise):
+    """The report's ``final_model``: the law, and each effect's parameters and
+    uncertainties from the last joint refit ``fit`` (none before a step)."""
+    params, errors = {}, {}
+    if fit is not None:
+        for e in model.effects:
+            params[e], errors[e] = params_report(fit, e, readnoise)
+    return {"law": model.ipc_law().describe(), "effects": params, "uncertainties": errors}
+
+
+def _bf_report(state, seeded):
+    """The report's ``brighter_fatter`` kernel (``None`` when the final model has none)."""
+    model, fit = state.model, state.fit
+    if "brighter_fatter" not in model.effects:
+        return None
+    params = model.effects["brighter_fatter"]
+    keys = [("brighter_fatter", p.name) for p in EFFECTS["brighter_fatter"].params]
+    cov, source = None, "the model file's kernel, as discover's parameters (not refitted)"
+    if fit is not None and all(k in fit.keys for k in keys):
+        idx = [fit.keys.index(k) for k in keys]
+        cov = fit.cov[np.ix_(idx, idx)]
+        source = ("fitted" if any(s.effect == "brighter_fatter" for s in state.steps) else
+                  "the model file's kernel, refitted with the effects named after it")
+    elif "brighter_fatter" not in seeded:
+        source = "fitted"
+    return brighter_fatter_section(params, cov, source)
 
 
 def summary_line(report):
@@ -95,7 +185,6 @@ def write_figures(discovery, directory):
     """Write the figures (:data:`FIGURES`) into ``directory`` (created if
     missing); return their paths."""
     import matplotlib
-    import matplotlib.ticker
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -103,10 +192,18 @@ def write_figures(discovery, directory):
     if os.path.exists(directory) and not os.path.isdir(directory):
         raise IPCInputError(f"{directory}: exists and is not a directory")
     os.makedirs(directory, exist_ok=True)
-    rep = discovery.report
     paths = [os.path.join(directory, name) for name in FIGURES]
+    for path, draw in zip(paths, (_gap_figure, _stacks_figure, _signal_figure, _maps_figure,
+                                  _probe_figure)):
+        fig = draw(plt, discovery)
+        _save(fig, path)
+        plt.close(fig)
+    return paths
 
-    # gap per step, against the noise floor
+
+def _gap_figure(plt, discovery):
+    """The gap after each step against the noise floor."""
+    rep = discovery.report
     fig, ax = plt.subplots(figsize=(6, 4))
     labels = ["baseline"] + ["+ " + s["effect"] for s in rep["steps"]]
     x = np.arange(len(labels))
@@ -128,10 +225,11 @@ def write_figures(discovery, directory):
     ax.set_title("Model-data gap after each added effect")
     ax.legend(fontsize=8)
     fig.tight_layout()
-    _save(fig, paths[0])
-    plt.close(fig)
+    return fig
 
-    # stacked 5x5 windows per signal bin, before and after
+
+def _stacks_figure(plt, discovery):
+    """The stacked 5x5 windows per signal bin, baseline and final."""
     nb = len(SIGNAL_BINS) - 1
     fig, axes = plt.subplots(2, nb, figsize=(2.9 * nb, 6.0), squeeze=False,
                              layout="constrained")
@@ -160,10 +258,11 @@ def write_figures(discovery, directory):
                 ax.set_xticklabels([])
     fig.colorbar(im, ax=axes, shrink=0.8, label="mean residual [sigma]")
     fig.suptitle("Mean residual around bright isolated peaks, by peak signal")
-    _save(fig, paths[1])
-    plt.close(fig)
+    return fig
 
-    # residual vs expected signal
+
+def _signal_figure(plt, discovery):
+    """The mean residual against expected signal."""
     fig, ax = plt.subplots(figsize=(6, 4))
     for name, d, c in (("baseline", discovery.baseline, "C3"), ("final", discovery.final, "C0")):
         ok = d["signal_counts"] > 0
@@ -177,10 +276,11 @@ def write_figures(discovery, directory):
     ax.set_title("Residual vs signal level")
     ax.legend()
     fig.tight_layout()
-    _save(fig, paths[2])
-    plt.close(fig)
+    return fig
 
-    # residual maps of the first frame
+
+def _maps_figure(plt, discovery):
+    """The residual maps of the first frame, baseline and final."""
     fig, axes = plt.subplots(1, 2, figsize=(10, 4.6), layout="constrained", sharey=True)
     for ax, (name, d) in zip(axes, (("baseline", discovery.baseline), ("final", discovery.final))):
         im = ax.imshow(d["residuals"][0], cmap="RdBu_r", vmin=-5, vmax=5, origin="lower",
@@ -189,10 +289,13 @@ def write_figures(discovery, directory):
         ax.set_xlabel("x [px]")
     axes[0].set_ylabel("y [px]")  # shared: one label, not two overlapping ones
     fig.colorbar(im, ax=axes, shrink=0.8, label="(measured - model) / sigma")
-    _save(fig, paths[3])
-    plt.close(fig)
+    return fig
 
-    # residuals by probe type, and chi-square against signal
+
+def _probe_figure(plt, discovery):
+    """The residuals by probe type, and the chi-square against signal."""
+    from matplotlib.ticker import NullFormatter
+
     fig, (ax0, ax1) = plt.subplots(1, 2, figsize=(11, 4.4), layout="constrained")
     kinds = list(discovery.final["by_probe"])
     xs = np.arange(len(kinds))
@@ -218,14 +321,12 @@ def write_figures(discovery, directory):
         ax1.plot(discovery.final["signal"][ok], fb[ok], "k--", lw=1, label="floor (simulated)")
     ax1.set_xscale("log")
     ax1.set_yscale("log")
-    ax1.yaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
+    ax1.yaxis.set_minor_formatter(NullFormatter())
     ax1.set_xlabel("expected signal [e-]")
     ax1.set_ylabel("chi-square per pixel")
     ax1.set_title("Chi-square vs signal level (variance problems show here)")
     ax1.legend(fontsize=8)
-    _save(fig, paths[4])
-    plt.close(fig)
-    return paths
+    return fig
 
 
 def brighter_fatter_section(params, cov=None, source="fitted"):
@@ -320,7 +421,7 @@ def describe_unexplained(d, rejected=(), effects=(), pixel_totals=None, n_pairs=
     (``pixel_totals``: those pairs' EXTVER, ``None`` = all of the
     ``n_pairs``); ``below_floor`` the floor scatters by which the final gap
     lies *below* the floor (a variance inflated somewhere). Only patterns
-    that stand out at :data:`UNEXPLAINED_Z` sigma are described.
+    that stand out at :data:`~.diagnostics.UNEXPLAINED_Z` sigma are described.
     """
     out = []
     if below_floor > 3.0:

@@ -181,11 +181,23 @@ def squares_flow(charge, loss_at_50ke):
     return out
 
 
+def _pair_hdus(k, scene, measured, oversample):
+    """The SCENE and MEASURED HDUs of pair ``k``."""
+    out = []
+    for name, data in (("SCENE", scene.astype(">f4")), ("MEASURED", measured)):
+        h = fits.ImageHDU(data, name=name)
+        h.header["EXTVER"] = k + 1
+        if name == "SCENE" and oversample > 1:
+            h.header["OVERSAMP"] = int(oversample)
+        out.append(h)
+    return out
+
+
 def make_file(path, n=64, pairs=2, seed=0, readnoise=12.0, true_readnoise=None, sky=False,
               silicon=None, reciprocity_alpha=0.0, gain_rms=0.0, persistence=(),
               diagonal=0.0, nonlinearity_beta=0.0, shift=(0.0, 0.0),
               levels=(4000.0, 15000.0, 30000.0, 45000.0), mc_diffusion=0.0, squares_bf=0.0,
-              hot="tophat", oversample=1, shift_hot=True):
+              hot="tophat", oversample=1, shift_hot=True, totals_path=None):
     """Write a lab file and return what was hidden in it.
 
     Parameters
@@ -211,6 +223,9 @@ def make_file(path, n=64, pairs=2, seed=0, readnoise=12.0, true_readnoise=None, 
     shift_hot : bool
         Whether the hot pixels move with ``shift`` (False: a sky displaced
         under the detector's fixed hot pixels).
+    totals_path : str, optional
+        Also write there the same file with pixel-total SCENEs (the same
+        MEASURED frames; what ``oversample = 1`` writes).
     """
     rng = np.random.default_rng(seed)
     rn = readnoise if true_readnoise is None else true_readnoise
@@ -224,9 +239,11 @@ def make_file(path, n=64, pairs=2, seed=0, readnoise=12.0, true_readnoise=None, 
     hdus[0].header["READNOIS"] = readnoise
     hdus[0].header["SHOTNOIS"] = True
     hdus[0].header["IPCLAW"] = f"constant:{ALPHA}"
+    totals = [fits.PrimaryHDU(header=hdus[0].header.copy())]
     for k in range(pairs):
         elements = draw_scene(n, rng, sky=sky, levels=levels, hot=hot)
         scene = expected(elements, n, oversample=oversample)
+        total = None if totals_path is None else expected(elements, n)
         if sensor is not None:
             charge = photon_shoot(elements, n, sensor, seed * 100 + k + 1, shift, shift_hot)
         else:
@@ -253,11 +270,10 @@ def make_file(path, n=64, pairs=2, seed=0, readnoise=12.0, true_readnoise=None, 
             img.applyNonlinearity(lambda x, b=nonlinearity_beta: x - b * x * x)
         img.addNoise(galsim.GaussianNoise(galsim.BaseDeviate(seed * 100 + 50 + k), sigma=rn))
         measured = img.array.astype(">f4")
-        for name, data in (("SCENE", scene.astype(">f4")), ("MEASURED", measured)):
-            h = fits.ImageHDU(data, name=name)
-            h.header["EXTVER"] = k + 1
-            if name == "SCENE" and oversample > 1:
-                h.header["OVERSAMP"] = int(oversample)
-            hdus.append(h)
+        hdus += _pair_hdus(k, scene, measured, oversample)
+        if total is not None:
+            totals += _pair_hdus(k, total, measured, 1)
     fits.HDUList(hdus).writeto(path, overwrite=True)
+    if totals_path is not None:
+        fits.HDUList(totals).writeto(totals_path, overwrite=True)
     return {"readnoise": rn, "gain_rms": gain_rms, "shift": shift, "oversample": oversample}
