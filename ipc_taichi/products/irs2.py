@@ -173,11 +173,14 @@ def is_irs2_pattern(readpatt):
 def irs2_geometry(primary, science, shape, label):
     """The :class:`IRS2Geometry` of a frame, ``None`` when it is not interleaved.
 
-    A frame is interleaved when its ``READPATT`` is an IRS2 pattern and it is
-    longer than the detector (a rate file of an IRS2 exposure, 2048 x 2048,
-    has had its reference samples removed by the pipeline: ``None``), or when
-    a NIRSpec frame is longer than the detector whatever ``READPATT`` says
-    (the JWST pipeline's own test, ``pipe_utils.is_irs2``).
+    A frame is interleaved when it is longer than the detector and its
+    ``READPATT`` is an IRS2 pattern, or it is a NIRSpec frame without
+    ``READPATT`` (the JWST pipeline's own rule, ``pipe_utils.is_irs2``, looks
+    at the shape alone). A rate file of an IRS2 exposure, 2048 x 2048, has had
+    its reference samples removed by the pipeline: ``None``. A NIRSpec frame
+    longer than the detector with another ``READPATT`` is refused.
+    ``NRS_NORM`` and ``NRS_REF`` default to the flight values 16 and 4, as in
+    the pipeline; the frame's shape must then be the one they give.
 
     Parameters
     ----------
@@ -208,10 +211,12 @@ def irs2_geometry(primary, science, shape, label):
     if not is_irs2_pattern(readpatt):
         if instrument != "NIRSPEC":
             return None
-        raise IPCInputError(f"{label}: a NIRSpec frame of {ny}x{nx} pixels, longer than the "
-                            f"detector's {DETECTOR_PIXELS}, with READPATT = "
-                            f"{readpatt or '(none)'}, not an IRS2 pattern: where its "
-                            "reference samples lie is unknown; refused")
+        if readpatt:
+            raise IPCInputError(f"{label}: a NIRSpec frame of {ny}x{nx} pixels, longer than "
+                                f"the detector's {DETECTOR_PIXELS}, with READPATT = {readpatt}, "
+                                "not an IRS2 pattern: where its reference samples lie is "
+                                "unknown; refused")
+        readpatt = "no READPATT"  # the pipeline's rule: the shape says IRS2
     normal = _count(get("NRS_NORM"), FLIGHT_NORMAL, "NRS_NORM", label)
     reference = _count(get("NRS_REF"), FLIGHT_REFERENCE, "NRS_REF", label)
     if normal % 2 or OUTPUT_PIXELS % normal:

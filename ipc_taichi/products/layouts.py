@@ -38,6 +38,7 @@ from ..errors import IPCInputError
 from . import irs2
 
 __all__ = ["Layout", "layout_of", "border_mask", "miri_reference_columns", "ramp_dq",
+           "ramp_keywords",
            "MIRI_COLUMNS", "MIRI_REFERENCE_COLUMNS", "NEAR_IR_BORDER"]
 
 MIRI_COLUMNS = 1032
@@ -209,6 +210,29 @@ def layout_of(primary, science, shape, label):
     if irs2.is_irs2_pattern(irs2.header_value(primary, science, "READPATT")):
         note = "IRS2 read pattern, its interleaved reference samples already removed"
     return Layout("contiguous", frame, frame, None, None, note)
+
+
+_RAMP_KEYWORDS = {
+    "TELESCOP": ("telescope",), "INSTRUME": ("instrument", "name"),
+    "DETECTOR": ("instrument", "detector"), "READPATT": ("exposure", "readpatt"),
+    "NRS_NORM": ("exposure", "nrs_normal"), "NRS_REF": ("exposure", "nrs_reference"),
+    "SUBARRAY": ("subarray", "name"), "SUBSTRT1": ("subarray", "xstart"),
+    "SUBSTRT2": ("subarray", "ystart"), "SUBSIZE1": ("subarray", "xsize"),
+    "SUBSIZE2": ("subarray", "ysize"),
+}
+
+
+def ramp_keywords(ramp):
+    """The layout keywords of a JWST ``RampModel`` as a header mapping (the
+    FITS names :func:`layout_of` reads; those the model lacks are left out)."""
+    keywords = {}
+    for key, path in _RAMP_KEYWORDS.items():
+        node = ramp.meta
+        for name in path:
+            node = getattr(node, name, None)
+        if node is not None:
+            keywords[key] = node
+    return keywords
 
 
 def ramp_dq(ramp):
