@@ -99,6 +99,13 @@ def test_miri_keywords_of_the_science_header_come_first():
     assert mask is None
 
 
+def test_miri_cut_out_is_not_placed():
+    """A slit cut out of a subarray keeps the exposure's SUBSTRT1 and SUBSIZE1."""
+    primary = dict(MIRI, SUBSTRT1=1, SUBSIZE1=72)
+    assert layouts.miri_reference_columns(primary, {}, (64, 72), LABEL).sum() == 4 * 64
+    assert layouts.miri_reference_columns(primary, {}, (40, 20), LABEL) is None
+
+
 def test_miri_without_substrt():
     assert layouts.miri_reference_columns(MIRI, {}, (1024, 1032), LABEL).sum() == 8 * 1024
     assert layouts.miri_reference_columns(MIRI, {}, (64, 72), LABEL) is None

@@ -135,9 +135,11 @@ def miri_reference_columns(primary, science, shape2d, label):
     Columns 1-4 and 1029-1032 of the detector (1-based) are reference
     columns; a subarray holds those that fall between ``SUBSTRT1`` and
     ``SUBSTRT1`` + its width - 1. A 1024 x 1032 frame without ``SUBSTRT1``
-    is the full frame; another shape without it: ``None`` (where it lies is
-    unknown; its DQ flags are what is left). ``None`` too for a frame that
-    holds no reference column, and for a product that is not MIRI's.
+    is the full frame; another shape without it, or a frame narrower or wider
+    than its ``SUBSIZE1`` (a cut-out, such as a slit of ``extract_2d``):
+    ``None``, where it lies is unknown and its DQ flags are what is left.
+    ``None`` too for a frame that holds no reference column, and for a
+    product that is not MIRI's.
 
     Raises
     ------
@@ -151,7 +153,9 @@ def miri_reference_columns(primary, science, shape2d, label):
     if str(get("INSTRUME") or "").strip().upper() != "MIRI":
         return None
     ny, nx = shape2d
-    start = get("SUBSTRT1")
+    start, size = get("SUBSTRT1"), get("SUBSIZE1")
+    if size is not None and irs2.whole_number(size) != nx:
+        return None
     if start is None:
         if nx != MIRI_COLUMNS:
             return None
