@@ -11,7 +11,7 @@ import ipc_taichi
 from ipc_taichi.datasets import star_field
 from ipc_taichi.errors import IPCInputError
 from ipc_taichi.products import irs2
-from ipc_taichi.products.layouts import layout_of
+from ipc_taichi.products.layouts import arrangement_of
 
 LABEL = "jw_irs2_uncal.fits[SCI]"
 GAIN = 2.0  # e-/DN
@@ -162,7 +162,7 @@ def test_refused_in_one_line(primary, shape, message):
         irs2.irs2_geometry(primary, {}, shape, LABEL)
     assert str(err.value) == message
     with pytest.raises(IPCInputError, match="refused$"):
-        layout_of(primary, {}, shape, LABEL)
+        arrangement_of(primary, {}, shape, LABEL)
 
 
 def test_wrong_shapes_refused():
@@ -194,7 +194,7 @@ def test_irs2_ramp_decoupled_within_1_dn(cpu, detector):
     truth[:b] = truth[-b:] = 0.0
     truth[:, :b] = truth[:, -b:] = 0.0
     truth_e = truth[None] * np.array([0.5, 1.0])[:, None, None]  # two groups of a ramp
-    layout = layout_of(header(DETECTOR=detector), {}, (1, 2, 3200, 2048), LABEL)
+    layout = arrangement_of(header(DETECTOR=detector), {}, (1, 2, 3200, 2048), LABEL)
     assert layout.kind == "irs2" and layout.science_shape == (2048, 2048)
     ramp = _irs2_ramp(truth_e, layout.irs2, rng)
 

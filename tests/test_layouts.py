@@ -1,6 +1,8 @@
-"""Product layouts (ipc_taichi.products.layouts): contiguous, IRS2, MIRI reference
-columns (against the JWST pipeline's ``ipc_corr.get_num_ref_pixels`` on its own test
-fixtures), and the DQ arrays of a RampModel that has none."""
+"""Readout arrangements (ipc_taichi.products.layouts) and the reference pixels the
+product plan places in their image (ipc_taichi.products.plan.layout_of): contiguous,
+IRS2, MIRI's reference columns (against the JWST pipeline's
+``ipc_corr.get_num_ref_pixels`` on its own test fixtures), and the flag arrays of a
+RampModel that has none."""
 
 import numpy as np
 import pytest
@@ -8,62 +10,84 @@ from jwst import datamodels
 from jwst.ipc.ipc_corr import get_num_ref_pixels
 
 from ipc_taichi.errors import IPCInputError
-from ipc_taichi.products import irs2, layouts
+from ipc_taichi.products import irs2, layouts, missions, plan
+from ipc_taichi.products.jwst_step import _flags, _keywords
+from ipc_taichi.products.options import ProductOptions
 
 LABEL = "jw_mirimage_rate.fits[SCI]"
 MIRI = {"TELESCOP": "JWST", "INSTRUME": "MIRI", "DETECTOR": "MIRIMAGE"}
 
 
+def _facts(primary, science, shape, label=LABEL):
+    def lookup(header):
+        return lambda key: header.get(key) if header.get(key) not in (None, "") else None
+
+    return plan.ArrayFacts(1, "SCI", label, tuple(shape), lookup(science), lookup(primary))
+
+
+def _layout(primary, science, shape, label=LABEL):
+    mission = missions.recognise(primary, science)
+    return plan.layout_of(tuple(shape)[-2:], mission, _facts(primary, science, shape, label))
+
+
 def test_contiguous_is_the_identity():
-    layout = layouts.layout_of({"TELESCOP": "JWST", "INSTRUME": "NIRCAM"}, {}, (3, 64, 80),
-                               "x.fits[SCI]")
-    assert (layout.kind, layout.shape, layout.science_shape) == ("contiguous", (64, 80),
-                                                                 (64, 80))
-    assert layout.identity and layout.reference is None and layout.irs2 is None
+    arrangement = layouts.arrangement_of({"TELESCOP": "JWST", "INSTRUME": "NIRCAM"}, {},
+                                         (3, 64, 80), "x.fits[SCI]")
+    assert (arrangement.kind, arrangement.shape, arrangement.science_shape) == (
+        "contiguous", (64, 80), (64, 80))
+    assert arrangement.identity and arrangement.irs2 is None and arrangement.border == 0
     frames = np.ones((3, 64, 80))
     corrected = frames * 2
-    assert layout.to_science(frames) is frames
-    assert layout.from_science(corrected, frames) is corrected
-    assert layout.describe() == "contiguous 64x80"
-    assert layouts.layout_of({}, {}, (5, 7), "x.fits[SCI]").kind == "contiguous"
+    assert arrangement.to_science(frames) is frames
+    assert arrangement.from_science(corrected, frames) is corrected
+    assert arrangement.describe() == "contiguous 64x80"
+    assert layouts.arrangement_of({}, {}, (5, 7), "x.fits[SCI]").kind == "contiguous"
 
 
 def test_irs2_rate_file_is_contiguous():
     header = {"INSTRUME": "NIRSPEC", "DETECTOR": "NRS1", "READPATT": "NRSIRS2"}
-    layout = layouts.layout_of(header, {}, (2048, 2048), "jw_nrs1_rate.fits[SCI]")
-    assert layout.kind == "contiguous" and layout.identity
-    assert layout.describe() == ("IRS2 read pattern, its interleaved reference samples "
-                                 "already removed")
+    arrangement = layouts.arrangement_of(header, {}, (2048, 2048), "jw_nrs1_rate.fits[SCI]")
+    assert arrangement.kind == "contiguous" and arrangement.identity
+    assert arrangement.describe() == ("IRS2 read pattern, its interleaved reference samples "
+                                      "already removed")
 
 
-def test_irs2_layout():
-    header = {"INSTRUME": "NIRSPEC", "DETECTOR": "NRS2", "READPATT": "NRSIRS2RAPID",
-              "NRS_NORM": 16, "NRS_REF": 4}
-    layout = layouts.layout_of(header, {}, (1, 4, 3200, 2048), "jw_nrs2_uncal.fits[SCI]")
-    assert (layout.kind, layout.shape, layout.science_shape) == ("irs2", (3200, 2048),
-                                                                 (2048, 2048))
-    assert not layout.identity
-    assert layout.describe() == ("IRS2 NRS2, NRS_NORM = 16, NRS_REF = 4 (3200 rows, 2048 of "
-                                 "them science)")
-    ref = layout.reference  # the near-infrared 4-pixel border of the science image
-    assert ref.shape == (2048, 2048) and ref.sum() == 2048 * 2048 - 2040 * 2040
-    assert ref[:4].all() and ref[:, -4:].all() and not ref[4:-4, 4:-4].any()
+def test_irs2_arrangement_and_the_plans_layout():
+    header = {"TELESCOP": "JWST", "INSTRUME": "NIRSPEC", "DETECTOR": "NRS2",
+              "READPATT": "NRSIRS2RAPID", "NRS_NORM": 16, "NRS_REF": 4}
+    arrangement = layouts.arrangement_of(header, {}, (1, 4, 3200, 2048),
+                                         "jw_nrs2_uncal.fits[SCI]")
+    assert (arrangement.kind, arrangement.shape, arrangement.science_shape) == (
+        "irs2", (3200, 2048), (2048, 2048))
+    assert not arrangement.identity and arrangement.border == 4
+    assert arrangement.describe() == ("IRS2 NRS2, NRS_NORM = 16, NRS_REF = 4 (3200 rows, 2048 "
+                                      "of them science)")
     ramp = np.arange(2 * 3200 * 2048, dtype=np.float32).reshape(1, 2, 3200, 2048)
-    science = layout.to_science(ramp)
+    science = arrangement.to_science(ramp)
     assert science.shape == (1, 2, 2048, 2048)
-    back = layout.from_science(science, ramp)
-    np.testing.assert_array_equal(back, ramp)
+    np.testing.assert_array_equal(arrangement.from_science(science, ramp), ramp)
+    # the plan asks once: the arrangement, then the border of its image
+    layout = _layout(header, {}, (1, 4, 3200, 2048), "jw_nrs2_uncal.fits[SCI]")
+    assert layout.arrangement == arrangement and layout.shape == (2048, 2048)
+    assert layout.region == (slice(4, 2044), slice(4, 2044)) and layout.beyond == "reference"
+
+
+def test_irs2_refused_with_tile():
+    header = {"TELESCOP": "JWST", "INSTRUME": "NIRSPEC", "DETECTOR": "NRS1",
+              "READPATT": "NRSIRS2", "BUNIT": "DN"}
+    facts = _facts(header, {}, (1, 2, 3200, 2048), "jw_nrs1_uncal.fits[SCI]")
+    options = ProductOptions.from_kwargs(tile=256, gain=2.0)
+    with pytest.raises(IPCInputError) as err:
+        plan.plan_array(facts, missions.recognise(header), None, options)
+    assert str(err.value) == ("jw_nrs1_uncal.fits[SCI]: an IRS2 frame (reference samples "
+                              "interleaved) is corrected whole: run without --tile")
 
 
 def test_miri_full_frame():
-    layout = layouts.layout_of(MIRI, {}, (2, 1024, 1032), LABEL)
-    assert layout.kind == "miri" and layout.identity
-    assert layout.describe() == "MIRI, 8 reference columns kept as they are"
-    ref = layout.reference
-    assert np.flatnonzero(ref.any(axis=0)).tolist() == [0, 1, 2, 3, 1028, 1029, 1030, 1031]
-    assert ref[:, [0, 3, 1028, 1031]].all()  # every row: MIRI has no reference rows
-    frames = np.ones((2, 1024, 1032))
-    assert layout.to_science(frames) is frames
+    layout = _layout(MIRI, {}, (2, 1024, 1032))
+    assert layout.arrangement.identity and layout.beyond == "reference"
+    assert layout.region == (slice(0, 1024), slice(4, 1028))  # no reference rows
+    assert layout.source == "MIRI full frame"
 
 
 def _miri_model(xstart, xsize, ysize=64):
@@ -77,100 +101,79 @@ def _miri_model(xstart, xsize, ysize=64):
 
 
 @pytest.mark.parametrize("xstart,xsize", [(1, 1032), (933, 100), (1, 288), (413, 256),
-                                          (3, 72), (1030, 3)])
+                                          (3, 72)])
 def test_miri_columns_are_the_pipelines(xstart, xsize):
+    """One rule for MIRI's 4 + 4 reference columns: the plan's
+    (``missions.reference_border``), read from the model as the Step reads it."""
     model = _miri_model(xstart, xsize)
     nref = get_num_ref_pixels(model)
-    keywords = layouts.ramp_keywords(model)
-    assert keywords["SUBSTRT1"] == xstart and keywords["INSTRUME"] == "MIRI"
-    mask = layouts.miri_reference_columns(keywords, None, model.data.shape[-2:], LABEL)
-    columns = np.zeros(xsize, bool) if mask is None else mask.all(axis=0)
+    get = _keywords(model)
+    assert get("SUBSTRT1") == xstart and get("INSTRUME") == "MIRI"
+    facts = plan.ArrayFacts(1, "SCI", LABEL, model.data.shape, get, get)
+    layout = plan.layout_of((64, xsize), missions.recognise({"TELESCOP": "JWST",
+                                                             "INSTRUME": "MIRI"}), facts)
+    columns = np.ones(xsize, bool)
+    columns[layout.region[1]] = False
     assert columns[:nref.left_columns].all() and columns[xsize - nref.right_columns:].all()
-    # the pipeline's counts are not clipped to the frame's width (4 for 3 columns)
-    assert columns.sum() == min(xsize, nref.left_columns + nref.right_columns)
+    assert columns.sum() == nref.left_columns + nref.right_columns
     assert (nref.bottom_rows, nref.top_rows) == (0, 0)
-    if mask is not None:
-        assert (mask == columns[None, :]).all()
+    assert layout.region[0] == slice(0, 64)
 
 
-def test_miri_keywords_of_the_science_header_come_first():
-    mask = layouts.miri_reference_columns(dict(MIRI, SUBSTRT1=1), {"SUBSTRT1": 413},
-                                          (64, 256), LABEL)
-    assert mask is None
+def test_miri_frame_of_reference_columns_only_refused():
+    """The pipeline counts 4 right columns for a 3-column frame at the edge: every
+    pixel is a reference pixel, nothing to correct."""
+    with pytest.raises(IPCInputError) as err:
+        _layout(dict(MIRI, SUBSTRT1=1030, SUBSTRT2=1), {}, (64, 3))
+    assert str(err.value) == "jw_mirimage_rate.fits[SCI]: every pixel is a reference pixel"
 
 
 def test_miri_cut_out_is_not_placed():
     """A slit cut out of a subarray keeps the exposure's SUBSTRT1 and SUBSIZE1."""
-    primary = dict(MIRI, SUBSTRT1=1, SUBSIZE1=72)
-    assert layouts.miri_reference_columns(primary, {}, (64, 72), LABEL).sum() == 4 * 64
-    assert layouts.miri_reference_columns(primary, {}, (40, 20), LABEL) is None
-
-
-def test_miri_without_substrt():
-    assert layouts.miri_reference_columns(MIRI, {}, (1024, 1032), LABEL).sum() == 8 * 1024
-    assert layouts.miri_reference_columns(MIRI, {}, (64, 72), LABEL) is None
-    assert layouts.miri_reference_columns({"INSTRUME": "NIRCAM"}, {}, (1024, 1032),
-                                          LABEL) is None
+    primary = dict(MIRI, SUBSTRT1=1, SUBSTRT2=1, SUBSIZE1=72, SUBSIZE2=64)
+    assert _layout(primary, {}, (64, 72)).region == (slice(0, 64), slice(4, 72))
+    assert _layout(primary, {}, (40, 20)).source == "no reference pixels"
 
 
 @pytest.mark.parametrize("start,width,message", [
-    (0, 72, "jw_mirimage_rate.fits[SCI]: SUBSTRT1 = 0 is not a column of the MIRI detector "
-            "(a whole number from 1); its reference columns cannot be placed; refused"),
-    ("left", 72, "jw_mirimage_rate.fits[SCI]: SUBSTRT1 = 'left' is not a column of the MIRI "
-                 "detector (a whole number from 1); its reference columns cannot be placed; "
+    (0, 72, "jw_mirimage_rate.fits[SCI]: SUBSTRT1 = 0 is not a pixel of the detector (a whole "
+            "number from 1); its reference pixels cannot be placed; refused"),
+    ("left", 72, "jw_mirimage_rate.fits[SCI]: SUBSTRT1 = 'left' is not a pixel of the "
+                 "detector (a whole number from 1); its reference pixels cannot be placed; "
                  "refused"),
-    (1000, 72, "jw_mirimage_rate.fits[SCI]: a MIRI frame of 72 columns from SUBSTRT1 = 1000 "
-               "runs past the detector's 1032 columns; refused"),
+    (1000, 72, "jw_mirimage_rate.fits[SCI]: a MIRI frame of 64x72 pixels from SUBSTRT1/2 = "
+               "1000, 1 runs past the detector's 1024x1032; refused"),
 ])
-def test_miri_refused_in_one_line(start, width, message):
+def test_geometry_refused_in_one_line(start, width, message):
     with pytest.raises(IPCInputError) as err:
-        layouts.layout_of(dict(MIRI, SUBSTRT1=start), {}, (64, width), LABEL)
+        _layout(dict(MIRI, SUBSTRT1=start, SUBSTRT2=1), {}, (64, width))
     assert str(err.value) == message
 
 
-def test_border_mask():
-    mask = layouts.border_mask((6, 7), 1, 2, 0, 3)
-    assert mask[:, 0].all() and mask[:, 5:].all() and mask[3:].all()
-    assert mask.sum() == 6 * 7 - 3 * 4
-    assert layouts.border_mask((3, 3), 9, 0, 0, 0).all()
-
-
-def test_ramp_dq_all_good_when_missing():
+def test_flags_of_a_model_without_them_all_good():
     model = datamodels.RampModel()  # as the pipeline's test fixtures make it
     model.data = np.ones((2, 3, 8, 10), dtype=np.float32)
     assert model.pixeldq is None and model.groupdq is None
-    pixeldq, groupdq = layouts.ramp_dq(model)
-    assert pixeldq.shape == (8, 10) and pixeldq.dtype == np.uint32 and not pixeldq.any()
-    assert groupdq.shape == (2, 3, 8, 10) and groupdq.dtype == np.uint8 and not groupdq.any()
+    assert _flags(model, model.data.shape, "ramp") == []
     assert model.pixeldq is None  # the model is left as it is
 
 
-def test_ramp_dq_the_models_own():
-    model = datamodels.RampModel((1, 2, 8, 10))
-    model.pixeldq[2, 3] = 1
-    model.groupdq[0, 1, 4, 5] = 4
-    pixeldq, groupdq = layouts.ramp_dq(model)
-    assert pixeldq[2, 3] == 1 and pixeldq.sum() == 1
-    assert groupdq[0, 1, 4, 5] == 4 and groupdq.sum() == 4
-
-
-def test_ramp_dq_wrong_shape_refused():
+def test_flags_of_the_wrong_shape_refused():
     model = datamodels.RampModel()
     model.data = np.ones((1, 2, 8, 10), dtype=np.float32)
-    model.meta.filename = "jw_bad_ramp.fits"
     model.pixeldq = np.zeros((8, 11), np.uint32)
     with pytest.raises(IPCInputError) as err:
-        layouts.ramp_dq(model)
+        _flags(model, model.data.shape, "jw_bad_ramp.fits")
     assert str(err.value) == ("jw_bad_ramp.fits[PIXELDQ]: shape (8, 11) does not match the "
-                              "science data's (8, 10); refused")
+                              "science data's (1, 2, 8, 10); refused")
 
 
-def test_ramp_keywords_irs2_fixture():
-    """The pipeline's own IRS2 ``ipc`` fixture (no READPATT) is an IRS2 layout."""
+def test_irs2_fixture_without_readpatt():
+    """The pipeline's own IRS2 ``ipc`` fixture (no READPATT), read as the Step reads it."""
     model = datamodels.RampModel()
     model.data = np.zeros((1, 2, 3200, 2048), dtype=np.float32)
     model.meta.instrument.name, model.meta.instrument.detector = "NIRSPEC", "NRS1"
     model.meta.exposure.nrs_normal, model.meta.exposure.nrs_reference = 16, 4
-    layout = layouts.layout_of(layouts.ramp_keywords(model), None, model.data.shape,
-                               "ramp[SCI]")
-    assert layout.irs2 == irs2.IRS2Geometry(16, 4, "NRS1")
+    get = _keywords(model)
+    facts = plan.ArrayFacts(1, "SCI", "ramp[SCI]", model.data.shape, get, get)
+    assert plan.arrangement_of(facts, (3200, 2048)).irs2 == irs2.IRS2Geometry(16, 4, "NRS1")
