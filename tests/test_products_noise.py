@@ -8,6 +8,7 @@ of a ramp (issue 28): within the stopping rule's tolerance of solving each group
 from scratch, in fewer iterations.
 """
 
+import re
 import time
 
 import numpy as np
@@ -71,7 +72,7 @@ def test_rate_err_within_two_percent_of_monte_carlo(cpu, tmp_path):
         assert hdul["ERR"].data.dtype == np.dtype(">f4")  # its own dtype and HDU
         assert hdul[0].header["IPCNOISE"] == noise.METHOD
         history = [str(line) for line in hdul[0].header["HISTORY"]]
-    assert "noise arrays: " + noise.METHOD in " ".join(history)
+    assert "noise arrays: " + noise.METHOD in re.sub(r"\s+", " ", " ".join(history))
     mc = sci.var(axis=0, ddof=1)
     predicted = (err ** 2).mean(axis=0)  # one ERR per draw, nearly the same
     ratio, zmax = _pooled(mc, predicted, size=60, draws=sci.shape[0])
@@ -108,10 +109,10 @@ def _ramp_file(rng, nints, groups=4):
 
 
 def _save_with(ramp, variances, path):
-    """The ramp's file with VAR_* HDUs beside ERR (a RampModel has none)."""
+    """The ramp's file with ERR and VAR_* HDUs (a RampModel carries none)."""
     ramp.save(path)
     with fits.open(path, mode="append") as hdul:
-        for name, value in variances.items():
+        for name, value in dict(ERR=np.asarray(ramp.err), **variances).items():
             hdul.append(fits.ImageHDU(value, name=name))
 
 
@@ -197,7 +198,8 @@ def test_keep_noise_leaves_the_arrays(cpu, cli, tmp_path):
     assert r.returncode == 0, r.stderr
     text, history = _left_as_they_came(src, dst)
     assert text == "unchanged (--keep-noise): ERR, VAR_POISSON, VAR_RNOISE"
-    assert "noise arrays: unchanged (--keep-noise): ERR, VAR_POISSON, VAR_RNOISE" in history
+    assert "noise arrays: unchanged (--keep-noise): ERR, VAR_POISSON, VAR_RNOISE" in \
+        re.sub(r"\s+", " ", " ".join(history))
 
 
 def test_couple_leaves_the_arrays_and_says_so(cpu, tmp_path):
@@ -255,7 +257,7 @@ def test_warm_starts_on_a_ramp_within_the_tolerance(cpu, tmp_path):
     worst = max(np.abs(out[True][i, g] - out[False][i, g]).max()
                 / np.abs(out[False][i, g]).max() for i in range(10) for g in range(8))
     assert worst <= tol
-    assert iterations[True] < 0.7 * iterations[False]
+    assert iterations[True] < 0.8 * iterations[False]
     print(f"\nwarm starts: {iterations[False]} -> {iterations[True]} iterations, "
           f"{seconds[False]:.2f} s -> {seconds[True]:.2f} s, max |warm - cold| / max|S| = "
           f"{worst:.2e} (tol {tol:g})")
