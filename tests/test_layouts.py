@@ -177,3 +177,24 @@ def test_irs2_fixture_without_readpatt():
     get = _keywords(model)
     facts = plan.ArrayFacts(1, "SCI", "ramp[SCI]", model.data.shape, get, get)
     assert plan.arrangement_of(facts, (3200, 2048)).irs2 == irs2.IRS2Geometry(16, 4, "NRS1")
+
+
+def test_calibrate_refuses_an_irs2_ramp(tmp_path):
+    """calibrate reads contiguous frames: an IRS2 ramp is refused in one line."""
+    from astropy.io import fits
+
+    from ipc_taichi.calibrate.inputs import read_frames
+
+    primary = fits.PrimaryHDU()
+    primary.header.update({"TELESCOP": "JWST", "INSTRUME": "NIRSPEC", "DETECTOR": "NRS1",
+                           "READPATT": "NRSIRS2", "NRS_NORM": 16, "NRS_REF": 4})
+    sci = fits.ImageHDU(np.zeros((1, 2, 3200, 2048), np.float32), name="SCI")
+    sci.header["BUNIT"] = "DN"
+    path = tmp_path / "jw_nrs1_irs2_dark.fits"
+    fits.HDUList([primary, sci]).writeto(path)
+    with pytest.raises(IPCInputError) as err:
+        read_frames(str(path), gain=2.0)
+    assert str(err.value) == (
+        f"{path}[SCI]: IRS2 NRS1, NRS_NORM = 16, NRS_REF = 4 (3200 rows, 2048 of them science): "
+        "calibrate reads contiguous frames; give the products after the refpix step (its "
+        "reference samples removed)")
