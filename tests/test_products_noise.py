@@ -15,7 +15,6 @@ import numpy as np
 import pytest
 from astropy.io import fits
 from stdatamodels.jwst.datamodels import CubeModel, ImageModel, RampModel
-from test_noise import SHAPE, _pooled, _scene
 
 import ipc_taichi
 from ipc_taichi import iteration, noise
@@ -23,6 +22,7 @@ from ipc_taichi.model import CouplingModel
 from ipc_taichi.products import process_product
 from ipc_taichi.products.jwst_step import IPCTaichiStep
 from ipc_taichi.products.plan import noise_of
+from tests.test_noise import SHAPE, _pooled, _scene
 
 MODEL = CouplingModel.resolve("donlon2018", None, "zero")
 GAIN, EXPTIME, READ = 2.0, 50.0, 6.0  # e-/DN, s, e- rms
