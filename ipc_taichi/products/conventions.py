@@ -446,8 +446,8 @@ def correct_frames(data, operation, model, *, mask=None, region=None, scale=1.0,
         stopping rule, so the same tolerance as from scratch).
     noise : dict, optional
         The product's noise arrays beside ``data`` (``err``, ``var_poisson``,
-        ``var_rnoise``, ``var_flat``; each of ``data``'s shape, float64, data
-        units), replaced in place, frame by frame, by their values after the
+        ``var_rnoise``, ``var_flat``; each of ``data``'s shape, float64,
+        C-contiguous, data units), replaced in place, frame by frame, by their values after the
         decoupler (:func:`ipc_taichi.noise.propagate_noise`, with this
         frame's region, model, mask, scale and pedestal). Decouple only.
 
@@ -475,6 +475,8 @@ def correct_frames(data, operation, model, *, mask=None, region=None, scale=1.0,
                     precision=precision, callback=after_iteration)
     record = unphysical if isinstance(unphysical, Unphysical) else Unphysical(unphysical)
     offset = (region[0].start or 0, region[1].start or 0)
+    if any(not v.flags.c_contiguous for v in (noise or {}).values()):
+        raise ValueError("correct_frames: noise arrays must be C-contiguous (updated in place)")
     noisy = {k: v.reshape((-1, ny, nx)) for k, v in (noise or {}).items()
              if operation == "decouple"}
     cached = {}
