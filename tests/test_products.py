@@ -112,7 +112,11 @@ def test_rate_product_kept_whole(cli, tmp_path, rate_file):
         assert b["SCI"].header["BUNIT"] == "DN/s"
         for name in ("ERR", "DQ", "VAR_POISSON", "VAR_RNOISE"):
             assert b[name].data.dtype == a[name].data.dtype
-            np.testing.assert_array_equal(b[name].data, a[name].data)
+        np.testing.assert_array_equal(b["DQ"].data, a["DQ"].data)
+        for name in ("ERR", "VAR_POISSON", "VAR_RNOISE"):  # propagated: test_products_noise
+            kept = refpix | bad  # never corrected: their noise as it came
+            np.testing.assert_array_equal(b[name].data[kept], a[name].data[kept])
+            assert not np.array_equal(b[name].data, a[name].data)
         assert b["ASDF"].data.tobytes() == a["ASDF"].data.tobytes()
         got, measured = b["SCI"].data, a["SCI"].data
         assert got.dtype.kind == "f" and got.dtype.itemsize == 4
@@ -200,8 +204,9 @@ def test_ramp_product_group_by_group(cli, tmp_path, rng):
     refpix = pixeldq & REFERENCE_PIXEL != 0
     with fits.open(src) as a, fits.open(out) as b:
         assert [h.name for h in b] == ["PRIMARY", "SCI", "PIXELDQ", "GROUPDQ", "ERR"]
-        for name in ("PIXELDQ", "GROUPDQ", "ERR"):
+        for name in ("PIXELDQ", "GROUPDQ"):
             np.testing.assert_array_equal(b[name].data, a[name].data)
+        assert not np.array_equal(b["ERR"].data, a["ERR"].data)  # test_products_noise
         got = b["SCI"].data
         assert got.dtype.itemsize == 4 and got.shape == (1, 3) + shape
         assert "frame     2" in str(b[0].header["HISTORY"])
@@ -209,6 +214,7 @@ def test_ramp_product_group_by_group(cli, tmp_path, rng):
             masked = bad | (late if g == 2 else False) | (saturated if g == 1 else False)
             keep = masked | refpix  # bit-identical (the file is big-endian, sci native)
             assert got[0, g][keep].astype("<f4").tobytes() == sci[0, g][keep].tobytes()
+            np.testing.assert_array_equal(b["ERR"].data[0, g][keep], 1.0)  # as it came
             ring1, ring2, far = _rings(masked)
             err = np.abs(got[0, g].astype(float) - truth[0, g])
             top = truth[0, g].max()

@@ -48,7 +48,13 @@ def test_level2_image(cli, tmp_path, rng):
         assert {"dq", "err", "var_poisson", "amp33", "border_ref_pix_left"} <= set(arrays)
         assert set(b.keys()) == set(a.keys())
         for name in arrays:  # every other array carried through unchanged
+            if name in ("err", "var_poisson", "var_rnoise", "var_flat"):  # propagated
+                assert np.asarray(b[name]).dtype == np.asarray(a[name]).dtype
+                np.testing.assert_array_equal(np.asarray(b[name])[bad], np.asarray(a[name])[bad])
+                continue
             np.testing.assert_array_equal(np.asarray(b[name]), np.asarray(a[name]))
+        assert b.meta.ipc_taichi["noise"].startswith("linearised decoupler")
+        assert not np.array_equal(np.asarray(b.err), np.asarray(a.err))
         got = np.asarray(b.data)
         assert got.dtype == np.float32
         assert (got[bad] == rate[bad]).all()

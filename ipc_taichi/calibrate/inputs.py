@@ -263,6 +263,10 @@ def _read_fits(path, hdu, gain, dq_bits, refpix, bunit):
         saturated_bit = bits & mission.flag("SATURATED")
         flags = flag_hdus(hdul, index, shape, path)
         layout = plan.layout_of(shape2d, mission, array_facts(path, hdul, index, label), refpix)
+        if not layout.arrangement.identity:
+            raise IPCInputError(f"{label}: {layout.arrangement.describe()}: calibrate reads "
+                                "contiguous frames; give the products after the refpix step "
+                                "(its reference samples removed)")
         region, inside = layout.region, layout.inside
         mask = np.zeros(shape, dtype=bool)
         saturated = np.zeros(shape, dtype=bool)

@@ -62,6 +62,9 @@ def _add_product_arguments(p):
                         "-2e4..1e6 e-) in the correction, as before: the law spreads them to "
                         "their neighbours (default: masked like flagged pixels, counted in "
                         "IPCNBAD; infinite values are always masked)")
+    g.add_argument("--keep-noise", action="store_true",
+                   help="leave ERR and VAR_POISSON/VAR_RNOISE/VAR_FLAT as they came (default, "
+                        "decouple: propagated through the linearised decoupler, IPCNOISE)")
     g.add_argument("--refpix", type=int, default=None, metavar="N",
                    help="reference border of N pixels, never changed, zero-signal neighbours "
                         "(default: the REFERENCE_PIXEL flags, else the observatory's: 4 for a "
@@ -145,6 +148,7 @@ def _product_options(args):
                    gain=args.gain, exptime=args.exptime, bunit=args.bunit, output_dtype=dtype,
                    pedestal=args.pedestal, coadds=args.coadds, saturation=args.saturation,
                    unphysical="keep" if args.keep_unphysical else "mask",
+                   noise="keep" if args.keep_noise else "propagate",
                    model_chosen=model_is_explicit(args),
                    # the edge asked for (None: none); the product's frame decides what
                    # it gets (products.plan.edge_of)

@@ -397,7 +397,7 @@ class named:
 def correct_frames(data, operation, model, *, mask=None, region=None, scale=1.0,
                    out=None, max_iter=iteration.MAX_ITER, tol=iteration.TOL, arch=None,
                    precision=None, label="data", pedestal=None, unphysical="mask",
-                   progress=None):
+                   progress=None, ramp=False, noise=None):
     """Couple or decouple every 2-D frame of ``data`` by the product rules.
 
     The pure correction function under every product reader/writer.
@@ -438,6 +438,18 @@ def correct_frames(data, operation, model, *, mask=None, region=None, scale=1.0,
     progress : callable, optional
         Told of each frame done, or of each iteration of a lone frame (see
         :func:`ipc_taichi.progress.reporters`).
+    ramp : bool
+        The frames along axis -3 are the groups of a ramp (the charge grows
+        from one to the next): decouple each integration's groups with warm
+        starts (:func:`ipc_taichi.decouple` ``warm_start=True``: each group
+        starts from the previous group's answer plus the new charge; the same
+        stopping rule, so the same tolerance as from scratch).
+    noise : dict, optional
+        The product's noise arrays beside ``data`` (``err``, ``var_poisson``,
+        ``var_rnoise``, ``var_flat``; each of ``data``'s shape, float64,
+        C-contiguous, data units), replaced in place, frame by frame, by their values after the
+        decoupler (:func:`ipc_taichi.noise.propagate_noise`, with this
+        frame's region, model, mask, scale and pedestal). Decouple only.
 
     Returns
     -------
@@ -463,43 +475,88 @@ def correct_frames(data, operation, model, *, mask=None, region=None, scale=1.0,
                     precision=precision, callback=after_iteration)
     record = unphysical if isinstance(unphysical, Unphysical) else Unphysical(unphysical)
     offset = (region[0].start or 0, region[1].start or 0)
+    if any(not v.flags.c_contiguous for v in (noise or {}).values()):
+        raise ValueError("correct_frames: noise arrays must be C-contiguous (updated in place)")
+    noisy = {k: v.reshape((-1, ny, nx)) for k, v in (noise or {}).items()
+             if operation == "decouple"}
     cached = {}
     infos = []
-    for k in range(frames.shape[0]):
+    groups = shape[-3] if ramp and operation == "decouple" and len(shape) > 2 else 1
+    for k0 in range(0, frames.shape[0], groups):
         check_stop()  # a SIGINT/SIGTERM swallowed by a library stops the run here
-        where = f"{label} frame {k}" if frames.shape[0] > 1 else label
-        measured = frames[k][region].astype(np.float64) * s_in
-        m = untrusted([], 0, measured.shape,
-                      None if masks is None else masks[k][region],
-                      gain=s_in if s.ndim == 2 else None)
-        bad = record.add(measured if base is None else measured + base, m, where, offset)
-        if bad is not None:
-            m = bad if m is None else (m | bad)
-        good = np.isfinite(measured) if m is None else (np.isfinite(measured) & ~m)
-        if not good.any():
-            raise IPCInputError(f"{where}: no finite, unmasked pixel to {operation} "
-                                "(all NaN, flagged or unphysical)")
-        if base is None:
-            result, info = _run(measured, m, where, **settings)
-        else:
-            key = None if m is None else m.tobytes()
-            if key not in cached:  # the pedestal through the same law, once per mask
-                cached[key] = _run(base, m, where, **settings)[0]
-            result, info = _run(measured + base, m, where, **settings)
-            result = result - cached[key]
-        with np.errstate(divide="ignore", invalid="ignore"):  # pixels without a gain: masked
-            result = result / s_in
-        target = flat_out[k][region]
-        target[...] = result if m is None else np.where(m, frames[k][region], result)
-        infos.append(info)
-        if after_frame is not None:
-            after_frame(k + 1)
+        ks = range(k0, k0 + groups)
+        wheres = [f"{label} frame {k}" if frames.shape[0] > 1 else label for k in ks]
+        measured, ms = zip(*(_frame_in(frames[k][region], s, s_in, base, record, where, offset,
+                                       operation, None if masks is None else masks[k][region])
+                             for k, where in zip(ks, wheres)))
+        results, run_infos = _solve(measured, ms, base, cached, wheres, settings)
+        for k, y, m, result, info in zip(ks, measured, ms, results, run_infos):
+            with np.errstate(divide="ignore", invalid="ignore"):  # no gain: masked
+                result = result / s_in
+            target = flat_out[k][region]
+            target[...] = result if m is None else np.where(m, frames[k][region], result)
+            if noisy:
+                _propagate(noisy, k, region, target, y, m, model, s_in, base)
+            infos.append(info)
+            if after_frame is not None:
+                after_frame(k + 1)
     record.warn(label)
     return out, infos
 
 
+def _frame_in(frame, s, s_in, base, record, where, offset, operation, flagged):
+    """One frame's measured charge (electrons) and its mask (None when none)."""
+    measured = frame.astype(np.float64) * s_in
+    m = untrusted([], 0, measured.shape, flagged, gain=s_in if s.ndim == 2 else None)
+    bad = record.add(measured if base is None else measured + base, m, where, offset)
+    if bad is not None:
+        m = bad if m is None else (m | bad)
+    good = np.isfinite(measured) if m is None else (np.isfinite(measured) & ~m)
+    if not good.any():
+        raise IPCInputError(f"{where}: no finite, unmasked pixel to {operation} "
+                            "(all NaN, flagged or unphysical)")
+    return measured, m
+
+
+def _solve(measured, masks, base, cached, wheres, settings):
+    """The frames (one, or the groups of one integration, warm-started) through
+    the decoupler or the forward model; ``D(M + P) - D(P)`` with a pedestal."""
+    if len(measured) == 1:
+        charge, mask, where = measured[0], masks[0], wheres[0]
+    else:
+        charge, where = np.stack(measured), f"{wheres[0]}-{wheres[-1].rsplit(' ', 1)[-1]}"
+        mask = None if all(m is None for m in masks) else np.stack(
+            [np.zeros(charge.shape[1:], bool) if m is None else m for m in masks])
+    if base is not None:
+        charge = charge + base
+    result, info = _run(charge, mask, where, **settings)
+    results = [result] if len(measured) == 1 else list(result)
+    infos = [info] if len(measured) == 1 else list(info)
+    if base is not None:
+        for i, (m, w) in enumerate(zip(masks, wheres)):
+            key = None if m is None else m.tobytes()
+            if key not in cached:  # the pedestal through the same law, once per mask
+                cached[key] = _run(base, m, w, **settings)[0]
+            results[i] = results[i] - cached[key]
+    return results, infos
+
+
+def _propagate(noisy, k, region, solution, measured, mask, model, s_in, base):
+    """Frame ``k`` of the noise arrays through the linearised decoupler, in place."""
+    from .. import noise
+
+    given = {name: array[k][region] for name, array in noisy.items()}
+    with np.errstate(divide="ignore", invalid="ignore"):
+        y = measured / s_in
+    new = noise.propagate_noise(np.asarray(solution, dtype=np.float64), model, measured=y,
+                                mask=mask, scale=s_in, pedestal=base, **given)
+    for name, value in new.items():
+        given[name][...] = value
+
+
 def _run(charge, mask, where, operation, model, max_iter, tol, arch, precision, callback):
-    """One frame in electrons through the decoupler or the forward model."""
+    """One frame in electrons (or a ramp's groups: warm-started) through the
+    decoupler or the forward model."""
     from ..coupling import couple
     from ..decoupling import decouple
 
@@ -508,7 +565,7 @@ def _run(charge, mask, where, operation, model, max_iter, tol, arch, precision, 
         if operation == "decouple":
             result, info = decouple(charge, model=model, mask=mask, max_iter=max_iter,
                                     tol=tol, arch=arch, precision=precision, full_output=True,
-                                    callback=callback)
+                                    callback=callback, warm_start=np.ndim(charge) == 3)
         else:
             result, info = couple(charge, model=model, mask=mask, arch=arch,
                                   precision=precision), None

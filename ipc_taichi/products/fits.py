@@ -25,11 +25,14 @@ Which pixels take part and in which units follows
 from :mod:`ipc_taichi.products.missions`. With ``tile`` the science array is
 read and written tile by tile (:mod:`ipc_taichi.products.streams`).
 
-ERR and VAR_* arrays are passed through unchanged, as the JWST ``ipc`` step
-does: the correction moves about alpha (under 1 %) of each pixel's charge
-between neighbours, so its effect on the variances is a redistribution of
-that size, below the accuracy they are used with; propagating it properly
-would need the pixel covariance, which the products do not carry.
+The noise arrays beside each science HDU (``ERR``, ``VAR_POISSON``,
+``VAR_RNOISE``, ``VAR_FLAT`` of the same ``EXTVER`` and shape) are, when
+decoupling, replaced by their values after the decoupler
+(:func:`ipc_taichi.noise.propagate_noise`, frame by frame, with the region,
+model, mask, scale and pedestal of the correction), in their own dtype and
+HDU; ``IPCNOISE`` and a HISTORY line say so. ``couple``, ``--keep-noise`` and
+``--tile`` leave them as they came and say that instead
+(:func:`ipc_taichi.products.plan.noise_of`).
 """
 
 import os
@@ -47,6 +50,7 @@ from .fitsfile import (
     hdu_label,
     is_compressed,
     keyword,
+    noise_hdus,
     open_fits,
     read_array,
     science_header,
@@ -55,7 +59,7 @@ from .fitsfile import (
     write_skeleton,
 )
 from .options import ProductOptions, resolve_model
-from .plan import ArrayFacts, Zeroth, plan_product
+from .plan import NOISE_ARRAYS, ArrayFacts, Zeroth, noise_of, plan_product
 
 __all__ = ["process_fits", "array_facts"]
 
@@ -138,9 +142,11 @@ def _output_dtype(bitpix, output_dtype):
     return out
 
 
-def _plan(input_path, hdul, model, options):
+def _plan(input_path, hdul, model, options, operation="decouple"):
     """Everything decided before the work (:func:`~ipc_taichi.products.plan.plan_product`),
-    with what FITS adds: each science HDU's flag HDUs and output dtype."""
+    with what FITS adds: each science HDU's flag HDUs and output dtype, and its
+    noise HDUs (``index -> {name: HDU index}``, empty when they are left as
+    they came; those propagated get an output dtype too) and the record's text."""
     sciences = science_indices(input_path, hdul, parse_hdu(options.hdu))
     mission = missions.recognise(hdul[0].header, hdul[sciences[0][0]].header, hdul)
     zeroth = _zeroth_read(hdul)
@@ -162,7 +168,17 @@ def _plan(input_path, hdul, model, options):
                         complete=set(all_sci) <= {i for i, _ in sciences})
     for index, label in sciences:
         _warn_if_corrected(hdul, index, label)
-    return plan, flags, dtypes
+    noise = {index: noise_hdus(hdul, index, shape_of(hdul[index].header), NOISE_ARRAYS)
+             for index, _ in sciences}
+    found = [n for n in NOISE_ARRAYS if any(n in v for v in noise.values())]
+    where = next((f"{input_path}[{hdu_label(hdul, k)}]" for v in noise.values()
+                  for k in v.values()), input_path)
+    propagate, noise_text = noise_of(operation, options, found, where)
+    noise = {index: (v if propagate else {}) for index, v in noise.items()}
+    for v in noise.values():
+        dtypes.update({k: np.dtype(np.float32 if hdul[k].header["BITPIX"] == -32
+                                   else np.float64) for k in v.values()})
+    return plan, flags, dtypes, noise, noise_text
 
 
 def _zeroth_charge(path, hdul, zeroth, gain, options):
@@ -206,7 +222,8 @@ def process_fits(input_path, output_path, operation="decouple", *, model=None, o
     _check_paths(input_path, output_path, operation, options)
     hdul = open_fits(input_path, memmap=True)
     with hdul:
-        plan, flags, dtypes = _plan(input_path, hdul, model, options)
+        plan, flags, dtypes, noise, noise_text = _plan(input_path, hdul, model, options,
+                                                       operation)
         if options.tile:
             for k in [p.index for p in plan.arrays] + [f for p in plan.arrays
                                                         for f in flags[p.index]]:
@@ -218,13 +235,16 @@ def process_fits(input_path, output_path, operation="decouple", *, model=None, o
         from .. import runtime
 
         rt = runtime.init(options.arch, options.precision)
-        prov = plan.provenance(operation, rt.arch, rt.precision, tol, max_iter, options.tile)
+        prov = plan.provenance(operation, rt.arch, rt.precision, tol, max_iter, options.tile,
+                               noise_text)
 
         def headers():
             out = {}
             for p in plan.arrays:
                 out[p.index] = prov.science(p.index, science_header(
                     hdul[p.index].header, dtypes[p.index]))
+                for k in noise[p.index].values():
+                    out[k] = science_header(hdul[k].header, dtypes[k])
             out[0] = prov.primary(out[0] if 0 in out else hdul[0].header.copy())
             return out
 
@@ -238,12 +258,13 @@ def process_fits(input_path, output_path, operation="decouple", *, model=None, o
                 record = cv.Unphysical(options.unphysical)
                 try:
                     prov.infos[p.index] = _correct(input_path, hdul, p, flags[p.index], out,
-                                                   plan.bits, options, operation, record)
+                                                   plan.bits, options, operation, record,
+                                                   _Noise(input_path, hdul, tmp, places, dtypes,
+                                                          noise[p.index], p))
                     prov.unphysical[p.index] = record.masked
                     out.flush()
                 finally:
                     del out
-                # the arrays beside the science one (ERR, VAR_*) are copied as they are
             _write(output_path, lambda: _rewrite_headers(tmp, places, headers(), output_path))
     infos = [i for p in plan.arrays for i in prov.infos[p.index]]
     converged = None if operation == "couple" or tol == 0 else all(i.converged for i in infos)
@@ -255,16 +276,48 @@ def process_fits(input_path, output_path, operation="decouple", *, model=None, o
             "edge": first.model.edge, "masked_unphysical": sum(prov.unphysical.values())}
 
 
-def _correct(input_path, hdul, plan, flag_indices, out, bits, options, operation, record):
-    """Correct one science HDU of the plan (:class:`~ipc_taichi.products.plan.ArrayPlan`)."""
-    flags = streams.Flags(input_path, hdul, flag_indices, bits, plan.shape, plan.inside,
-                          options.saturation, options.tile)
+def _correct(input_path, hdul, plan, flag_indices, out, bits, options, operation, record,
+             noise):
+    """Correct one science HDU of the plan (:class:`~ipc_taichi.products.plan.ArrayPlan`)
+    and its noise HDUs (a :class:`_Noise`)."""
+    flags = streams.Flags(input_path, hdul, flag_indices, bits, plan.science_shape,
+                          plan.inside, options.saturation, options.tile, plan.arrangement)
     if options.tile:
         return streams.tiled(input_path, hdul, plan.index, out, flags, plan.region,
                              plan.scale, plan.model, options, plan.label, record)
-    return streams.whole(input_path, hdul, plan.index, out, flags, plan.region,
-                         plan.scale, plan.model, options, plan.label,
-                         pedestal=plan.pedestal, operation=operation, record=record)
+    arrays = noise.read()
+    infos = streams.whole(input_path, hdul, plan.index, out, flags, plan.region,
+                          plan.scale, plan.model, options, plan.label,
+                          pedestal=plan.pedestal, operation=operation, record=record,
+                          arrangement=plan.arrangement, ramp=plan.ramp, noise=arrays)
+    noise.write(arrays)
+    return infos
+
+
+class _Noise:
+    """The noise HDUs of one science HDU: read (float64, in the contiguous
+    image) before its correction, written into the output after."""
+
+    def __init__(self, path, hdul, tmp, places, dtypes, indices, plan):
+        self.path, self.hdul, self.tmp = path, hdul, tmp
+        self.places, self.dtypes, self.indices, self.plan = places, dtypes, indices, plan
+
+    def read(self):
+        science = self.plan.arrangement.to_science
+        return {name: np.array(science(read_array(self.path, self.hdul, k)), dtype=np.float64)
+                for name, k in self.indices.items()}
+
+    def write(self, arrays):
+        for name, k in self.indices.items():
+            dtype = self.dtypes[k]
+            out = np.memmap(self.tmp, dtype=dtype.newbyteorder(">"), mode="r+",
+                            offset=self.places[k][2], shape=self.plan.shape)
+            try:
+                out[...] = self.plan.arrangement.from_science(
+                    arrays[name].astype(dtype), np.asarray(read_array(self.path, self.hdul, k)))
+                out.flush()
+            finally:
+                del out
 
 
 def _rewrite_headers(tmp, places, headers, output_path):

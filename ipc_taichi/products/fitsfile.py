@@ -14,8 +14,8 @@ import numpy as np
 from ..errors import IPCInputError
 
 __all__ = ["open_fits", "hdu_label", "shape_of", "keyword", "RawImage", "read_array",
-           "science_indices", "flag_hdus", "write_skeleton", "science_header", "BIT_FLAG_HDUS",
-           "is_compressed"]
+           "science_indices", "flag_hdus", "noise_hdus", "write_skeleton", "science_header",
+           "BIT_FLAG_HDUS", "is_compressed"]
 
 BIT_FLAG_HDUS = ("DQ", "PIXELDQ", "GROUPDQ")
 """HDUs of bit flags: they say which pixels to trust and are never data."""
@@ -206,6 +206,21 @@ def flag_hdus(hdul, index, shape, path):
             raise IPCInputError(f"{path}[{name}]: shape {dq_shape} does not match the science "
                                 f"array {shape}")
         found.append(k)
+    return found
+
+
+def noise_hdus(hdul, index, shape, names):
+    """The noise HDUs of the science HDU (same EXTVER, its shape, floating
+    point): ``name -> index`` for the ``names`` (lower case) whose EXTNAME
+    (upper case) is found; others (another shape, integers) are not listed."""
+    extver = hdul[index].header.get("EXTVER", 1)
+    found = {}
+    for k, h in enumerate(hdul):
+        name = (h.name or "").lower()
+        if name in names and name not in found and h.header.get("EXTVER", 1) == extver \
+                and h.header.get("NAXIS", 0) and h.header.get("BITPIX") in (-32, -64) \
+                and "BZERO" not in h.header and shape_of(h.header) == tuple(shape):
+            found[name] = k
     return found
 
 

@@ -38,7 +38,10 @@ science and record the same IPC keywords (``extra_fits``) and HISTORY
 frame decides what it gets (``zero`` beside reference pixels, else what was
 asked, else ``isolated`` for a subarray inside the detector). A rate or
 rateints model is corrected too (DN/s and its integration time). A model
-without ``pixeldq``/``groupdq`` is all good.
+without ``pixeldq``/``groupdq`` is all good. An IRS2 ramp is corrected in
+its contiguous image (:mod:`~ipc_taichi.products.layouts`), its reference
+samples as they came; ``err`` and ``var_*`` are propagated as the command
+line propagates ``ERR`` and ``VAR_*`` (``noise="keep"`` leaves them).
 """
 
 import logging
@@ -52,11 +55,12 @@ except ImportError as exc:  # the optional extra is not installed
     raise ImportError("the JWST step needs jwst: pip install 'ipc_taichi[jwst]'") from exc
 
 from .. import __version__, iteration
+from ..errors import IPCInputError
 from ..model import CouplingModel
 from . import conventions as cv
 from . import missions
 from .options import ProductOptions
-from .plan import ArrayFacts, plan_product
+from .plan import NOISE_ARRAYS, ArrayFacts, noise_of, plan_product
 
 __all__ = ["IPCTaichiStep", "Detector1TaichiPipeline", "correct_ramp", "correct_model",
            "plan_model"]
@@ -84,9 +88,10 @@ def _keywords(datamodel):
     return get
 
 
-def _flags(datamodel, shape):
+def _flags(datamodel, shape, label):
     """The model's bit-flag arrays present (``pixeldq``, ``groupdq``, ``dq``):
-    a model without them (the pipeline's own test fixtures) is all good."""
+    a model without them (the pipeline's own test fixtures) is all good, the
+    one rule for a missing array."""
     found = []
     for name in ("pixeldq", "groupdq", "dq"):
         value = datamodel.instance.get(name)
@@ -94,8 +99,21 @@ def _flags(datamodel, shape):
             continue
         f = np.asarray(value)
         if f.shape != shape[len(shape) - f.ndim:]:
-            raise ValueError(f"ipc_taichi: {name} has shape {f.shape}, the data {shape}")
+            raise IPCInputError(f"{label}[{name.upper()}]: shape {f.shape} does not match the "
+                                f"science data's {shape}; refused")
         found.append(f)
+    return found
+
+
+def _noise(datamodel, shape):
+    """The model's noise arrays present (``err``, ``var_*``) of the data's
+    shape, floating point: ``name -> ndarray``."""
+    found = {}
+    for name in NOISE_ARRAYS:
+        value = datamodel.instance.get(name)
+        if value is not None and np.shape(value) == tuple(shape) and \
+                np.asarray(value).dtype.kind == "f":
+            found[name] = np.asarray(value)
     return found
 
 
@@ -106,7 +124,7 @@ def plan_model(datamodel, coupling, options):
     data = np.asarray(datamodel.data)
     get = _keywords(datamodel)
     label = f"{datamodel.meta.filename or 'model'}[SCI]"
-    flags = _flags(datamodel, data.shape)
+    flags = _flags(datamodel, data.shape, label.rsplit("[", 1)[0])
 
     def reference():
         if not flags:
@@ -142,16 +160,25 @@ def correct_model(datamodel, coupling, options, superbias=None):
     """
     plan, flags = plan_model(datamodel, coupling, options)
     p, = plan.arrays
-    data = np.asarray(datamodel.data)
+    science = p.arrangement.to_science  # an IRS2 frame: its contiguous image
+    stored = np.asarray(datamodel.data)
+    data, flags = science(stored), [science(f) for f in flags]
+    superbias = None if superbias is None else science(superbias)
     work = data if superbias is None else data - superbias
     mask = cv.untrusted(flags, plan.bits, data.shape, p.layout.inside_mask(), values=work,
                         saturation=options.saturation)
+    came = _noise(datamodel, stored.shape)
+    propagate, noise_text = noise_of("decouple", options, list(came),
+                                     f"{p.label.rsplit('[', 1)[0]}[{next(iter(came), '')}]")
+    noise = {k: np.array(science(v), dtype=np.float64) for k, v in came.items()} \
+        if propagate else {}
     out = np.empty(data.shape, dtype=data.dtype)
     record = cv.Unphysical(options.unphysical)
     _, infos = cv.correct_frames(work, "decouple", p.model, mask=mask, region=p.region,
                                  scale=p.scale, out=out, max_iter=options.max_iter,
                                  tol=options.tol, arch=options.arch,
-                                 precision=options.precision, label=p.label, unphysical=record)
+                                 precision=options.precision, label=p.label, unphysical=record,
+                                 ramp=p.ramp, noise=noise)
     if superbias is not None:
         out += superbias.astype(out.dtype)
         # pixels left alone (reference border, masked): exactly as they came
@@ -160,12 +187,15 @@ def correct_model(datamodel, coupling, options, superbias=None):
         if mask is not None:
             untouched |= mask
         out[untouched] = data[untouched]
-    datamodel.data = out  # err and the variances beside it: as they came (the plan's place)
+    datamodel.data = p.arrangement.from_science(out, stored)
+    for name, value in noise.items():  # in their own dtype, every other sample as it came
+        datamodel[name] = p.arrangement.from_science(value.astype(came[name].dtype),
+                                                     came[name])
     from .. import runtime
 
     rt = runtime.current()
     prov = plan.provenance("decouple", rt.arch if rt else "", rt.precision if rt else "",
-                           options.tol, options.max_iter)
+                           options.tol, options.max_iter, noise=noise_text)
     prov.infos[p.index] = infos
     prov.unphysical[p.index] = record.masked
     _record(datamodel, prov, p.index)
@@ -237,6 +267,7 @@ class IPCTaichiStep(Step):
         tol = float(default={iteration.TOL!r})  # stop when max|dS| <= tol * max|S|
         arch = string(default=None)  # Taichi arch: auto, cpu, cuda
         precision = string(default=None)  # f64 or f32
+        noise = option('propagate', 'keep', default='propagate')  # err, var_*
     """
 
     @classmethod
@@ -264,7 +295,7 @@ class IPCTaichiStep(Step):
         return ProductOptions.from_kwargs(
             gain=self.gain, dq_bits=self.dq_bits, refpix=self.refpix,
             saturation=self.saturation, max_iter=self.max_iter, tol=self.tol, arch=self.arch,
-            precision=self.precision, edge=self.edge)
+            precision=self.precision, edge=self.edge, noise=self.noise)
 
     def process(self, step_input):
         """Decouple every group of a ramp (or a rate, rateints) as the command

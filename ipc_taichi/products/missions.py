@@ -45,6 +45,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import IPCInputError
+from .irs2 import whole_number
 
 __all__ = ["Mission", "Border", "recognise", "roman_mission", "reference_border", "HST_DQ_FLAGS",
            "JWST_DQ_FLAGS", "REFERENCE_PIXEL", "check_model_chosen", "check_not_bias",
@@ -291,14 +292,24 @@ def _origin(own, product, shape2d):
     for keys in (("SUBSTRT1", "SUBSTRT2"), ("SLTSTRT1", "SLTSTRT2")):
         x0, y0 = own(keys[0]), own(keys[1])
         if x0 is not None and y0 is not None:
-            return int(x0), int(y0), f"{keys[0][:-1]}1/2"
+            return _pixel(keys[0], x0), _pixel(keys[1], y0), f"{keys[0][:-1]}1/2"
     x0, y0 = product("SUBSTRT1"), product("SUBSTRT2")
     size = (product("SUBSIZE1"), product("SUBSIZE2"))
     if x0 is None or y0 is None:
         return None
-    if None not in size and (int(size[0]), int(size[1])) != (nx, ny):
+    if None not in size and (whole_number(size[0]), whole_number(size[1])) != (nx, ny):
         return None  # the whole exposure's, not this cut-out's
-    return int(x0), int(y0), "SUBSTRT1/2"
+    return _pixel("SUBSTRT1", x0), _pixel("SUBSTRT2", y0), "SUBSTRT1/2"
+
+
+def _pixel(key, value):
+    """A 1-based detector position from a geometry keyword (refused when not
+    a whole number from 1)."""
+    number = whole_number(value)
+    if number is None:
+        raise IPCInputError(f"{key} = {value!r} is not a pixel of the detector (a whole "
+                            "number from 1); its reference pixels cannot be placed; refused")
+    return number
 
 
 def reference_border(mission, own, product, shape2d):
@@ -341,6 +352,9 @@ def reference_border(mission, own, product, shape2d):
         x0, y0, source = 1, 1, "full frame"
     else:
         x0, y0, source = origin
+    if x0 - 1 + nx > full_x or y0 - 1 + ny > full_y:
+        raise IPCInputError(f"a {mission.instrument} frame of {ny}x{nx} pixels from SUBSTRT1/2 "
+                            f"= {x0}, {y0} runs past the detector's {full_y}x{full_x}; refused")
     x0, y0 = x0 - 1, y0 - 1  # 0-based
     bottom, top = (0, 0) if miri else (max(0, n - y0), max(0, y0 + ny - (full_y - n)))
     left, right = max(0, n - x0), max(0, x0 + nx - (full_x - n))

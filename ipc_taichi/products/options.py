@@ -14,7 +14,10 @@ from .. import iteration
 from ..errors import IPCInputError
 from .missions import DEFAULT_DQ
 
-__all__ = ["ProductOptions", "resolve_model"]
+__all__ = ["ProductOptions", "resolve_model", "NOISE_CHOICES"]
+
+NOISE_CHOICES = ("propagate", "keep")
+"""What is done with the noise arrays beside the science one."""
 
 
 @dataclass(frozen=True)
@@ -74,6 +77,15 @@ class ProductOptions:
         pixels whatever was asked; else the rule asked for; else
         ``isolated`` for a detector product, the model's rule for a plain
         image.
+    noise : {"propagate", "keep"}
+        The noise arrays beside the science one (``ERR``, ``VAR_POISSON``,
+        ``VAR_RNOISE``, ``VAR_FLAT``; Roman's and the Step's ``err`` and
+        ``var_*``): propagated through the linearised decoupler (the default,
+        decouple only; :func:`ipc_taichi.products.plan.noise_of`) or left as
+        they came (``--keep-noise``).
+    warm_start : bool
+        Decouple the groups of a ramp with warm starts (each from the
+        previous group's answer plus the new charge; the same stopping rule).
     """
 
     hdu: object = None
@@ -96,6 +108,8 @@ class ProductOptions:
     unphysical: str = "mask"
     model_chosen: bool = True
     edge: str = None
+    noise: str = "propagate"
+    warm_start: bool = True
 
     @classmethod
     def from_kwargs(cls, options=None, **kwargs):
@@ -120,6 +134,9 @@ class ProductOptions:
             if base["edge"] not in EDGES:
                 raise IPCInputError(f"edge must be one of {', '.join(EDGES)}, got "
                                     f"{base['edge']!r}")
+        if base.get("noise", "propagate") not in NOISE_CHOICES:
+            raise IPCInputError(f"noise must be one of {', '.join(NOISE_CHOICES)}, got "
+                                f"{base['noise']!r}")
         return cls(**base)
 
     def replace(self, **changes):

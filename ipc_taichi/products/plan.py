@@ -19,13 +19,18 @@ decisions, in this order, are made here:
    else the mission's time keywords); ``--coadds`` or ``NCOADDS``/``NDIT``;
    hence electrons per data unit
    (:func:`~ipc_taichi.products.conventions.charge_scale`).
-3. **Layout** (:func:`layout_of`): the science region inside the reference
-   pixels (``--refpix``, else the ``REFERENCE_PIXEL`` flags, else the
-   observatory's convention, :func:`~ipc_taichi.products.missions.reference_border`)
-   and what lies beyond its edge.
+3. **Layout** (:func:`layout_of`): how the frame is read out (its
+   :class:`~ipc_taichi.products.layouts.Arrangement`: contiguous, or NIRSpec
+   IRS2 with reference samples interleaved), then the science region inside
+   the reference pixels of the contiguous image (``--refpix``, else the
+   ``REFERENCE_PIXEL`` flags, else the observatory's convention,
+   :func:`~ipc_taichi.products.missions.reference_border`) and what lies beyond its edge.
 4. **Edge** (:func:`edge_of`): the model says which edge rule it asks for;
    the product's frame decides what it gets.
 5. **Pedestal**: the charge on the node before the first read.
+6. **Noise** (:func:`noise_of`): whether the arrays beside the science one
+   (``ERR``, ``VAR_*``) are propagated through the linearised decoupler, and
+   what the record says of them.
 
 The per-array work (:func:`~ipc_taichi.products.conventions.correct_frames`,
 and what a reader does with the arrays beside the science one) happens after,
@@ -41,12 +46,13 @@ import numpy as np
 
 from ..errors import IPCInputError
 from . import conventions as cv
-from . import missions
+from . import layouts, missions
 from .gain import read_frame, read_gain
 from .provenance import Provenance
 
 __all__ = ["ArrayFacts", "ArrayPlan", "Layout", "ProductPlan", "Zeroth", "plan_product",
-           "plan_array", "dq_bits_of", "say_lacking", "layout_of", "edge_of", "BEYOND"]
+           "plan_array", "noise_of", "NOISE_ARRAYS", "dq_bits_of", "say_lacking",
+           "arrangement_of", "layout_of", "edge_of", "BEYOND"]
 
 BEYOND = ("reference", "pixels", "unknown")
 """What lies beyond a science region's edge: reference pixels (zero-signal
@@ -106,6 +112,18 @@ class Zeroth:
     charge: Callable
 
 
+class _Header:
+    """A keyword look-up (``key -> value or None``) as the mapping
+    :mod:`~ipc_taichi.products.layouts` reads."""
+
+    def __init__(self, lookup):
+        self.lookup = lookup
+
+    def get(self, key, default=None):
+        value = self.lookup(key)
+        return default if value is None else value
+
+
 @dataclass(frozen=True)
 class Layout:
     """Where the science is in a frame.
@@ -113,7 +131,8 @@ class Layout:
     Attributes
     ----------
     shape : (int, int)
-        The frame.
+        The contiguous image of the frame (:attr:`arrangement`'s
+        ``science_shape``; the stored frame itself unless interleaved).
     region : (slice, slice)
         The science region inside the reference pixels.
     inside : ndarray of bool or None
@@ -122,6 +141,9 @@ class Layout:
         What lies beyond the region's edge (:data:`BEYOND`).
     source : str
         Where the layout came from (one phrase).
+    arrangement : Arrangement
+        How the stored frame holds that image
+        (:func:`~ipc_taichi.products.layouts.arrangement_of`).
     """
 
     shape: tuple
@@ -129,6 +151,7 @@ class Layout:
     inside: object
     beyond: str
     source: str
+    arrangement: object = None
 
     @property
     def widths(self):
@@ -152,7 +175,7 @@ class ArrayPlan:
     Attributes
     ----------
     index, name, label, shape :
-        As in :class:`ArrayFacts`.
+        As in :class:`ArrayFacts` (``shape``: as stored).
     units_text : str
         How its numbers become electrons (the HISTORY's phrase).
     exptime : float or None
@@ -161,11 +184,16 @@ class ArrayPlan:
         Electrons per data unit, per exposure.
     coadds : int
     layout : Layout
+        Its readout arrangement and science region.
     model : CouplingModel
         The model with the edge rule the frame gets.
     edge_reason : str
     pedestal : ndarray or None
         Charge on the node before the first read, electrons.
+    ramp : bool
+        Its frames along axis -3 are the groups of a ramp (charge, not a
+        rate, in a stack of frames), decoupled with warm starts
+        (``options.warm_start``).
     """
 
     index: int
@@ -180,6 +208,7 @@ class ArrayPlan:
     model: object
     edge_reason: str
     pedestal: object = None
+    ramp: bool = False
 
     @property
     def region(self):
@@ -188,6 +217,16 @@ class ArrayPlan:
     @property
     def inside(self):
         return self.layout.inside
+
+    @property
+    def arrangement(self):
+        return self.layout.arrangement
+
+    @property
+    def science_shape(self):
+        """The shape of the contiguous image(s) corrected (:attr:`shape` unless
+        the frames are interleaved)."""
+        return tuple(self.shape[:-2]) + tuple(self.layout.shape)
 
     @property
     def frames(self):
@@ -206,16 +245,19 @@ class ProductPlan:
     pedestal_text: str = "none"
     complete: bool = True
 
-    def provenance(self, operation, arch, precision, tol, max_iter, tile=None):
+    def provenance(self, operation, arch, precision, tol, max_iter, tile=None,
+                   noise="none"):
         """The :class:`~ipc_taichi.products.provenance.Provenance` of a run of
-        this plan (every path records the same keywords and HISTORY)."""
+        this plan (every path records the same keywords and HISTORY);
+        ``noise``: what was done with the noise arrays (:func:`noise_of`)."""
         first = self.arrays[0]
         prov = Provenance(operation, first.model, first.edge_reason, self.bits,
                           self.pedestal_text, first.coadds, arch, precision, tol, max_iter,
-                          tile, self.complete)
+                          tile, self.complete, noise)
         for a in self.arrays:
             prov.add_hdu(a.index, a.name, a.label, a.region, a.units_text, a.exptime, a.frames,
-                         a.shape[-2:])
+                         a.layout.shape,
+                         "" if a.arrangement.identity else a.arrangement.note)
         return prov
 
 
@@ -272,13 +314,32 @@ def _open_edge(mission):
     return "pixels" if mission.detector_product else "unknown"
 
 
-def layout_of(shape2d, mission, facts=None, refpix=None):
-    """The science region of a frame and what lies beyond its edge.
+def arrangement_of(facts, shape2d):
+    """How the stored frame of ``facts`` is read out
+    (:func:`~ipc_taichi.products.layouts.arrangement_of`; contiguous when
+    nothing is known of it)."""
+    if facts is None:
+        return layouts.Arrangement.contiguous(shape2d)
+    return layouts.arrangement_of(_Header(facts.product), _Header(facts.own),
+                                  tuple(facts.shape[:-2]) + tuple(shape2d), facts.label)
 
-    ``refpix`` (a border of N pixels) if given; else the ``REFERENCE_PIXEL``
-    flags of the first frame (``facts.reference``); else the observatory's
+
+def layout_of(shape2d, mission, facts=None, refpix=None):
+    """How a frame is read out, its science region and what lies beyond its edge.
+
+    First the frame's readout arrangement (:func:`arrangement_of`: an IRS2
+    frame's contiguous image is the 2048 x 2048 detector). Then, in that
+    image: ``refpix`` (a border of N pixels) if given; else the
+    ``REFERENCE_PIXEL`` flags of the first frame (``facts.reference``); else
+    the border the arrangement places (IRS2); else the observatory's
     convention (:func:`~ipc_taichi.products.missions.reference_border`, from
-    the array's own geometry keywords); else none.
+    the array's own geometry keywords: the near-infrared border, MIRI's
+    4 + 4 reference columns, Roman's border); else none.
+
+    Parameters
+    ----------
+    shape2d : (int, int)
+        The stored frame.
 
     Returns
     -------
@@ -287,9 +348,12 @@ def layout_of(shape2d, mission, facts=None, refpix=None):
     Raises
     ------
     IPCInputError
-        A border that leaves no science, naming the array.
+        A frame whose arrangement cannot be placed, a border that leaves no
+        science, geometry keywords that place no pixel (one line, naming the
+        array).
     """
-    shape2d = tuple(shape2d)
+    arrangement = arrangement_of(facts, shape2d)
+    shape2d = arrangement.science_shape
     label = facts.label if facts is not None else "data"
     whole = (slice(0, shape2d[0]), slice(0, shape2d[1]))
 
@@ -299,24 +363,34 @@ def layout_of(shape2d, mission, facts=None, refpix=None):
         except IPCInputError as exc:
             raise IPCInputError(f"{label}: {exc}") from None
 
+    def made(region, inside, beyond, source):
+        return Layout(shape2d, region, inside, beyond, source, arrangement)
+
     if refpix is not None:
         region, _ = region_of(refpix)
         beyond = "reference" if int(refpix) else _open_edge(mission)
-        return Layout(shape2d, region, None, beyond, f"--refpix {int(refpix)}")
+        return made(region, None, beyond, f"--refpix {int(refpix)}")
     flagged = facts.reference() if facts is not None and facts.reference else None
+    flagged = arrangement.to_science(flagged)
     if flagged is not None and flagged.any():
         region, inside = region_of(None, flagged)
         beyond = "reference" if region != whole else _open_edge(mission)
-        return Layout(shape2d, region, inside, beyond, "REFERENCE_PIXEL flags")
+        return made(region, inside, beyond, "REFERENCE_PIXEL flags")
     border = None
-    if facts is not None:
-        border = missions.reference_border(mission, facts.own, facts.product, shape2d)
+    if arrangement.border:
+        n = arrangement.border
+        border = missions.Border(n, n, n, n, arrangement.note)
+    elif facts is not None:
+        try:
+            border = missions.reference_border(mission, facts.own, facts.product, shape2d)
+        except IPCInputError as exc:
+            raise IPCInputError(f"{label}: {exc}") from None
     if border is None:
-        return Layout(shape2d, whole, None, _open_edge(mission), "no reference pixels")
+        return made(whole, None, _open_edge(mission), "no reference pixels")
     if border.stored_apart:
-        return Layout(shape2d, whole, None, "reference", border.source)
+        return made(whole, None, "reference", border.source)
     region, _ = region_of(None, border.mask(shape2d))
-    return Layout(shape2d, region, None, "reference", border.source)
+    return made(region, None, "reference", border.source)
 
 
 def edge_of(model, asked, layout):
@@ -397,10 +471,60 @@ def _pedestal(facts, options, gain, zeroth):
     return None
 
 
+NOISE_ARRAYS = ("err", "var_poisson", "var_rnoise", "var_flat")
+"""The noise arrays a product may hold beside its science array (FITS
+``EXTNAME`` in upper case), as :func:`ipc_taichi.noise.propagate_noise` names them."""
+
+
+def noise_of(operation, options, found, where):
+    """Whether a product's noise arrays are propagated, and the record's text.
+
+    Propagated (:data:`ipc_taichi.noise.METHOD`) when decoupling, unless
+    ``options.noise`` is ``"keep"``; ``couple`` leaves them as they came
+    (the forward model adds the coupling to a signal whose noise the caller
+    knows; what the arrays describe is not changed by it); a tiled run leaves
+    them as they came and says so in one line (the linearisation is made on
+    whole frames).
+
+    Parameters
+    ----------
+    found : list of str
+        The names (:data:`NOISE_ARRAYS`) of the arrays of the science
+        array's shape that the product holds.
+    where : str
+        The file and its first noise array, for the one line of a tiled run.
+
+    Returns
+    -------
+    propagate : bool
+    text : str
+        The ``IPCNOISE`` keyword's value (at most 68 characters).
+    """
+    from ..noise import METHOD
+
+    names = ", ".join(n.upper() for n in found)
+    if not found:
+        return False, "none: no ERR or VAR_* array"
+    if options.noise == "keep":
+        return False, f"unchanged (--keep-noise): {names}"
+    if operation != "decouple":
+        return False, f"unchanged (couple): {names}"
+    if options.tile:
+        warnings.warn(f"{where}: {names} left unchanged with --tile (the noise is propagated "
+                      "on whole frames); run without --tile to propagate it",
+                      cv.ProductWarning, stacklevel=3)
+        return False, f"unchanged (--tile): {names}"
+    return True, METHOD
+
+
 def plan_array(facts, mission, model, options, zeroth=None):
     """The :class:`ArrayPlan` of one science array (steps 2-5 of the module's
     sequence). ``zeroth``: the product's zeroth read (:class:`Zeroth`) or None."""
-    shape2d = tuple(facts.shape[-2:])
+    layout = layout_of(facts.shape[-2:], mission, facts, options.refpix)
+    if options.tile and not layout.arrangement.identity:
+        raise IPCInputError(f"{facts.label}: an IRS2 frame (reference samples interleaved) is "
+                            "corrected whole: run without --tile")
+    shape2d = layout.shape
     units = _units(facts, mission, options)
     gain = read_gain(options.gain if options.gain is not None else facts.keyword("GAIN"),
                      shape2d)
@@ -409,14 +533,14 @@ def plan_array(facts, mission, model, options, zeroth=None):
     scale, units_text = cv.charge_scale(units, gain, exptime, facts.label,
                                         time_source=mission.time_source, coadds=coadds,
                                         gain_source=mission.gain_source)
-    layout = layout_of(shape2d, mission, facts, options.refpix)
     inner, reason = edge_of(model, options.edge, layout)
     pedestal = _pedestal(facts, options, gain, zeroth)
     if pedestal is not None and options.tile:
         raise IPCInputError(f"{facts.label}: --tile cannot add the pedestal (zeroth read); run "
                             "without --tile, or give --pedestal none")
     return ArrayPlan(facts.index, facts.name, facts.label, tuple(facts.shape), units_text,
-                     exptime, scale, coadds, layout, inner, reason, pedestal)
+                     exptime, scale, coadds, layout, inner, reason, pedestal,
+                     len(facts.shape) > 2 and not units.rate and options.warm_start)
 
 
 def plan_product(arrays, mission, model, options, *, dq_where=None, zeroth=None,

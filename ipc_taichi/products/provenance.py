@@ -71,7 +71,7 @@ class Provenance:
     """
 
     def __init__(self, operation, model, edge_reason, bits, pedestal_text, coadds, arch,
-                 precision, tol, max_iter, tile=None, all_science=True):
+                 precision, tol, max_iter, tile=None, all_science=True, noise="none"):
         self.operation = operation
         self.model = model
         self.edge_reason = edge_reason
@@ -81,19 +81,24 @@ class Provenance:
         self.arch, self.precision = arch, precision
         self.tol, self.max_iter, self.tile = tol, max_iter, tile
         self.all_science = all_science
+        self.noise = noise  # what was done with ERR/VAR_* (plan.noise_of)
         self.hdus = {}  # index -> dict(name, region, units, exptime, frames)
         self.infos = {}  # index -> list of DecoupleInfo (None before the work)
         self.unphysical = {}  # index -> unflagged pixels masked as unphysical
         self.started = _now()
 
-    def add_hdu(self, index, name, label, region, units_text, exptime, frames, shape=None):
-        """A science array of the run; ``shape`` (its frame's) gives ``IPCNREF``."""
+    def add_hdu(self, index, name, label, region, units_text, exptime, frames, shape=None,
+                arrangement=""):
+        """A science array of the run; ``shape`` (its contiguous image's) gives
+        ``IPCNREF``; ``arrangement``: how its frames are read out, when not
+        contiguous (said in HISTORY)."""
         nref = "0 0 0 0"
         if shape is not None:
             (ys, xs), (ny, nx) = region, shape
             nref = f"{ys.start} {ny - ys.stop} {xs.start} {nx - xs.stop}"
         self.hdus[index] = dict(name=name, label=label, region=region, units=units_text,
-                                exptime=float(exptime or 0.0), frames=frames, nref=nref)
+                                exptime=float(exptime or 0.0), frames=frames, nref=nref,
+                                arrangement=arrangement)
         self.infos[index] = [None] * frames
 
     @property
@@ -133,6 +138,7 @@ class Provenance:
             "IPCNBAD": (sum(self.unphysical.values()), "unflagged unphysical pixels masked"),
             "IPCPED": (self.pedestal_text[:60], "charge on the node before the first read"),
             "IPCCOADD": (self.coadds, "exposures summed per frame"),
+            "IPCNOISE": (self.noise[:68], "ERR/VAR_* arrays: how carried"),
             "IPCARCH": (self.arch, "Taichi arch used"),
             "IPCPREC": (self.precision, "floating precision"),
         })
@@ -173,9 +179,13 @@ class Provenance:
         lines = [f"{self.started} ipc_taichi {__version__} {self.operation}{how}",
                  f"model: {self.model.describe()}; edge: {self.edge_reason}",
                  *([REMOVED] if self.operation == "decouple" else []),
-                 f"pedestal: {self.pedestal_text}; coadds: {self.coadds}"]
+                 f"pedestal: {self.pedestal_text}; coadds: {self.coadds}",
+                 f"noise arrays: {self.noise}"]
         for index, h in self.hdus.items():
             lines.append(f"HDU {index} {h['name']}: units {h['units']}")
+            if h["arrangement"]:
+                lines.append(f"HDU {index} {h['name']}: {h['arrangement']}; corrected in the "
+                             "contiguous image, every other sample as it came")
             if self.operation == "decouple":
                 for k, i in enumerate(self.infos[index]):
                     it, conv = (i.iterations, i.converged) if i else (0, False)
@@ -192,7 +202,7 @@ class Provenance:
                "law": self.model.law.name, "model": self.model.describe(),
                "edge_reason": self.edge_reason, "units": h["units"], "dq_bits": self.bits,
                "masked_unphysical": int(self.unphysical.get(index, 0)),
-               "pedestal": self.pedestal_text, "coadds": self.coadds,
+               "pedestal": self.pedestal_text, "coadds": self.coadds, "noise": self.noise,
                "science_region": [[h["region"][0].start, h["region"][0].stop],
                                   [h["region"][1].start, h["region"][1].stop]],
                "arch": self.arch or "", "precision": self.precision or ""}

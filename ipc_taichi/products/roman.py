@@ -1,8 +1,11 @@
 """Roman ASDF products in, the same products out (``pip install ipc_taichi[roman]``).
 
 Read and written through ``roman_datamodels``, so the whole tree (metadata,
-``err``, variances, border reference pixels, ``amp33``, WCS) is carried
-through; only the science array changes, in its own dtype. The rules are
+border reference pixels, ``amp33``, WCS) is carried through; only the science
+array changes, in its own dtype, and, when decoupling, ``err``,
+``var_poisson``, ``var_rnoise`` and ``var_flat`` (propagated through the
+linearised decoupler, :func:`ipc_taichi.products.plan.noise_of`; the record's
+``noise`` says how). The rules are
 those of :mod:`ipc_taichi.products.conventions`:
 
 - level 2 (``ImageModel``): ``data`` in DN/s (the trimmed 4088x4088 science
@@ -35,7 +38,7 @@ from ..interrupts import check_stop
 from . import conventions as cv
 from . import missions
 from .options import ProductOptions, resolve_model
-from .plan import ArrayFacts, plan_product
+from .plan import NOISE_ARRAYS, ArrayFacts, noise_of, plan_product
 
 __all__ = ["process_asdf"]
 
@@ -88,19 +91,26 @@ def process_asdf(input_path, output_path, operation="decouple", *, model=None, o
         p, = plan.arrays
         mask = cv.untrusted(flags, plan.bits, data.shape, p.layout.inside_mask(), values=data,
                             saturation=options.saturation)
+        came = _noise(dm, data.shape)
+        propagate, noise_text = noise_of(operation, options, list(came),
+                                         f"{input_path}[{next(iter(came), '')}]")
+        noise = {k: np.array(v, dtype=np.float64) for k, v in came.items()} \
+            if propagate else {}
         out = np.empty(data.shape, dtype=data.dtype)
         record = cv.Unphysical(options.unphysical)
         _, infos = cv.correct_frames(data, operation, p.model, mask=mask, region=p.region,
                                      scale=p.scale, out=out, max_iter=max_iter, tol=tol,
                                      arch=options.arch, precision=options.precision,
                                      label=label, unphysical=record,
-                                     progress=options.progress)
-        dm.data = out  # err and the variances beside it: as they came (the plan's place)
+                                     progress=options.progress, ramp=p.ramp, noise=noise)
+        dm.data = out
+        for name, value in noise.items():  # propagated, each in its own dtype
+            dm[name] = value.astype(came[name].dtype)
         from .. import runtime
 
         rt = runtime.current()
         prov = plan.provenance(operation, rt.arch if rt else "", rt.precision if rt else "",
-                               tol, max_iter)
+                               tol, max_iter, noise=noise_text)
         prov.infos[0] = infos
         prov.unphysical[0] = record.masked
         dm.meta["ipc_taichi"] = prov.record()
@@ -140,6 +150,18 @@ def _arrays(dm, input_path, label):
             raise IPCInputError(f"{input_path}[{name}]: shape {f.shape} does not match "
                                 f"the data {data.shape}")
     return kind, ramp, data, flags
+
+
+def _noise(dm, shape):
+    """The product's noise arrays (``err``, ``var_*``) of the data's shape,
+    floating point: ``name -> ndarray``."""
+    found = {}
+    for name in NOISE_ARRAYS:
+        if name in dm and dm[name] is not None:
+            value = np.asarray(dm[name])
+            if value.shape == tuple(shape) and value.dtype.kind == "f":
+                found[name] = value
+    return found
 
 
 def _facts(dm, kind, label, shape, flags):

@@ -20,7 +20,8 @@ class Flags:
     """The bit-flag arrays of one science HDU, whole or as windows, and the
     pixels they (and the other rules) leave out."""
 
-    def __init__(self, path, hdul, indices, bits, shape, inside, saturation, tile):
+    def __init__(self, path, hdul, indices, bits, shape, inside, saturation, tile,
+                 arrangement=None):
         self.shape = shape
         self.bits = bits
         self.inside = inside
@@ -31,7 +32,8 @@ class Flags:
             self.sources = [(RawImage(path, hdul, k), ndim - hdul[k].header["NAXIS"])
                             for k in indices]
         else:
-            self.sources = [(read_array(path, hdul, k), ndim - hdul[k].header["NAXIS"])
+            science = arrangement.to_science if arrangement is not None else np.asarray
+            self.sources = [(science(read_array(path, hdul, k)), ndim - hdul[k].header["NAXIS"])
                             for k in indices]
 
     def whole(self, region, data):
@@ -55,17 +57,26 @@ class Flags:
 
 
 def whole(path, hdul, index, out, flags, region, scale, model, options, label, pedestal=None,
-          operation="decouple", record=None):
+          operation="decouple", record=None, arrangement=None, ramp=False, noise=None):
     """Correct HDU ``index`` in memory into ``out`` (a memory map of the output);
     ``record``: the :class:`~ipc_taichi.products.conventions.Unphysical` of
-    this HDU (default: ``options.unphysical``)."""
-    data = read_array(path, hdul, index)
+    this HDU (default: ``options.unphysical``); ``arrangement``: how its frames
+    are read out (corrected in their contiguous image, every other sample
+    copied); ``ramp`` and ``noise`` as for
+    :func:`~ipc_taichi.products.conventions.correct_frames` (``noise`` in the
+    contiguous image)."""
+    original = read_array(path, hdul, index)
+    science = arrangement is not None and not arrangement.identity
+    data = arrangement.to_science(original) if science else original
+    target = np.empty(data.shape, out.dtype) if science else out
     _, infos = cv.correct_frames(
         data, operation, model, mask=flags.whole(region, data), region=region, scale=scale,
-        out=out, max_iter=options.max_iter, tol=options.tol, arch=options.arch,
+        out=target, max_iter=options.max_iter, tol=options.tol, arch=options.arch,
         precision=options.precision, label=label, pedestal=pedestal,
         unphysical=record if record is not None else options.unphysical,
-        progress=options.progress)
+        progress=options.progress, ramp=ramp, noise=noise)
+    if science:
+        out[...] = arrangement.from_science(target, np.asarray(original))
     return infos
 
 
