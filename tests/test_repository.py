@@ -224,11 +224,6 @@ IMPORTED_WHEN_CALLED = {
                        "--help` and `decouple` do not load calibrate/ or discover/ "
                        "(0.4 s each, scipy and matplotlib)",
 }
-# Files other work owns now (issue 29): their light imports still inside functions;
-# each entry must still hold one, so the list can only shrink.
-_MOVED_AFTER_MERGE = {"ipc_taichi/discover/effects.py", "ipc_taichi/products/conventions.py",
-                      "ipc_taichi/products/fits.py", "ipc_taichi/products/options.py",
-                      "ipc_taichi/products/roman.py"}
 
 
 def test_library_imports_are_at_the_top_of_their_modules():
@@ -244,8 +239,7 @@ def test_library_imports_are_at_the_top_of_their_modules():
         for line, module, in_function in _imports(path):
             if in_function and (module == "ipc_taichi" or module.startswith("ipc_taichi.")):
                 inside.setdefault(rel, []).append(f"{line}: {module}")
-    assert set(inside) - _MOVED_AFTER_MERGE == set(), inside
-    assert _MOVED_AFTER_MERGE - set(inside) == set(), "moved: take it off the list"
+    assert inside == {}, inside
 
 
 def test_cuda_presence_is_asked_of_one_function():

@@ -43,7 +43,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .. import iteration
+from .. import iteration, noise
+from ..coupling import couple
+from ..decoupling import decouple
 from ..errors import ConvergenceWarning, DivergenceError, IPCInputError
 from ..interrupts import check_stop
 from ..progress import reporters
@@ -543,8 +545,6 @@ def _solve(measured, masks, base, cached, wheres, settings):
 
 def _propagate(noisy, k, region, solution, measured, mask, model, s_in, base):
     """Frame ``k`` of the noise arrays through the linearised decoupler, in place."""
-    from .. import noise
-
     given = {name: array[k][region] for name, array in noisy.items()}
     with np.errstate(divide="ignore", invalid="ignore"):
         y = measured / s_in
@@ -557,9 +557,6 @@ def _propagate(noisy, k, region, solution, measured, mask, model, s_in, base):
 def _run(charge, mask, where, operation, model, max_iter, tol, arch, precision, callback):
     """One frame in electrons (or a ramp's groups: warm-started) through the
     decoupler or the forward model."""
-    from ..coupling import couple
-    from ..decoupling import decouple
-
     with warnings.catch_warnings(), named(where):
         warnings.simplefilter("ignore", ConvergenceWarning)  # reported per frame by callers
         if operation == "decouple":

@@ -40,7 +40,7 @@ import warnings
 
 import numpy as np
 
-from .. import iteration
+from .. import iteration, runtime
 from ..errors import IPCInputError
 from ..fitsio import atomic_output, check_output_path, parse_hdu
 from . import conventions as cv
@@ -232,8 +232,6 @@ def process_fits(input_path, output_path, operation="decouple", *, model=None, o
                         f"{input_path}[{hdu_label(hdul, k)}]: tile-compressed; --tile reads "
                         "pixels through memory maps: run without --tile, or decompress the "
                         "file first (funpack)")
-        from .. import runtime
-
         rt = runtime.init(options.arch, options.precision)
         prov = plan.provenance(operation, rt.arch, rt.precision, tol, max_iter, options.tile,
                                noise_text)

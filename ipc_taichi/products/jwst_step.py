@@ -54,7 +54,7 @@ try:
 except ImportError as exc:  # the optional extra is not installed
     raise ImportError("the JWST step needs jwst: pip install 'ipc_taichi[jwst]'") from exc
 
-from .. import __version__, iteration
+from .. import __version__, iteration, runtime
 from ..errors import IPCInputError
 from ..model import CouplingModel
 from . import conventions as cv
@@ -191,8 +191,6 @@ def correct_model(datamodel, coupling, options, superbias=None):
     for name, value in noise.items():  # in their own dtype, every other sample as it came
         datamodel[name] = p.arrangement.from_science(value.astype(came[name].dtype),
                                                      came[name])
-    from .. import runtime
-
     rt = runtime.current()
     prov = plan.provenance("decouple", rt.arch if rt else "", rt.precision if rt else "",
                            options.tol, options.max_iter, noise=noise_text)

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 from .. import iteration
 from ..errors import IPCInputError
+from ..model import EDGES, CouplingModel
 from .missions import DEFAULT_DQ
 
 __all__ = ["ProductOptions", "resolve_model", "NOISE_CHOICES"]
@@ -129,8 +130,6 @@ class ProductOptions:
         if base.get("output_dtype") == "same":
             base["output_dtype"] = None
         if base.get("edge") is not None:
-            from ..model import EDGES
-
             if base["edge"] not in EDGES:
                 raise IPCInputError(f"edge must be one of {', '.join(EDGES)}, got "
                                     f"{base['edge']!r}")
@@ -148,8 +147,6 @@ def resolve_model(model, options):
     """The coupling model of a run and the options saying whether the caller
     chose it: with no model, the paper's law, not counted as chosen (an
     instrument product then refuses it)."""
-    from ..model import CouplingModel
-
     if model is None:
         return CouplingModel.resolve(), options.replace(model_chosen=False)
     return CouplingModel.resolve(model=model), options

@@ -45,6 +45,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import IPCInputError
+from ..model import CouplingModel
+from ..noise import METHOD
 from . import conventions as cv
 from . import layouts, missions
 from .gain import read_frame, read_gain
@@ -415,8 +417,6 @@ def edge_of(model, asked, layout):
     model : CouplingModel
     reason : str
     """
-    from ..model import CouplingModel
-
     if layout.beyond == "reference":
         edge, reason = "zero", f"reference pixels ({layout.source}): zero-signal neighbours"
     elif asked is not None:
@@ -500,8 +500,6 @@ def noise_of(operation, options, found, where):
     text : str
         The ``IPCNOISE`` keyword's value (at most 68 characters).
     """
-    from ..noise import METHOD
-
     names = ", ".join(n.upper() for n in found)
     if not found:
         return False, "none: no ERR or VAR_* array"

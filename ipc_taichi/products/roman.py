@@ -31,7 +31,7 @@ import warnings
 
 import numpy as np
 
-from .. import iteration
+from .. import iteration, runtime
 from ..errors import IPCInputError
 from ..fitsio import cannot_write, check_output_path
 from ..interrupts import check_stop
@@ -106,8 +106,6 @@ def process_asdf(input_path, output_path, operation="decouple", *, model=None, o
         dm.data = out
         for name, value in noise.items():  # propagated, each in its own dtype
             dm[name] = value.astype(came[name].dtype)
-        from .. import runtime
-
         rt = runtime.current()
         prov = plan.provenance(operation, rt.arch if rt else "", rt.precision if rt else "",
                                tol, max_iter, noise=noise_text)
