@@ -153,6 +153,23 @@ def run_benchmark(sizes=SIZES, kinds=KINDS, repeats=5, configs=None, progress=pr
     if not info["cuda"]:
         notes.append("No CUDA GPU on this machine: the Taichi CUDA rows and the CUDA section "
                      "(device-resident, host in/out, stack, CuPy peer, device floor) were not run.")
+    rows = _measure_rows(sizes, kinds, repeats, configs, progress)
+    notes += _row_notes(sizes, repeats)
+    _add_ratios(rows)
+    results = {"machine": info, "repeats": repeats, "notes": notes, "rows": rows,
+               "floor": floor_model(info), "pipeline": None, "ramp": None, "calibrate": None,
+               "cuda": None, "startup": None}
+    if measure:
+        results["floor"]["measured"] = _launch({"config": "floor"}, "The floor measurement",
+                                               notes)
+        results.update(_measure_sections(info, repeats, progress, notes, cuda_size, stack,
+                                         pipeline_size, ramp_size, ramp_groups))
+    return results
+
+
+def _measure_rows(sizes, kinds, repeats, configs, progress):
+    """The table's rows: every configuration on every frame, each in a
+    subprocess of its own (a failed one kept as a row with its ``error``)."""
     rows = []
     with tempfile.TemporaryDirectory(prefix="ipc-bench-") as workdir:
         for size in sizes:
@@ -177,6 +194,12 @@ def run_benchmark(sizes=SIZES, kinds=KINDS, repeats=5, configs=None, progress=pr
                     progress(f"  {config:16s} {kind:8s} {size:5d}: median {row['median_s']:.3f} s "
                              f"of {row['repeats']}, {row['iterations']} it, "
                              f"max err {row['max_error']:.3g}")
+    return rows
+
+
+def _row_notes(sizes, repeats):
+    """The notes on the rows: NumPy's capped repeats, the reference's largest frame."""
+    notes = []
     for size in sizes:
         capped = NUMPY_REPEAT_CAP.get(size)
         if capped is not None and capped < repeats:
@@ -185,53 +208,49 @@ def run_benchmark(sizes=SIZES, kinds=KINDS, repeats=5, configs=None, progress=pr
     if any(s > REFERENCE_MAX_SIZE for s in sizes):
         notes.append(f"numpy-reference (the paper-faithful one) is run up to "
                      f"{REFERENCE_MAX_SIZE}x{REFERENCE_MAX_SIZE} only.")
-    _add_ratios(rows)
-    floor = floor_model(info)
-    if measure:
-        floor["measured"], failed = in_subprocess({"config": "floor"})
-        if failed:
-            notes.append(f"The floor measurement failed: {failed}")
-    pipeline = None
-    if measure and pipeline_size:
+    return notes
+
+
+def _launch(spec, what, notes):
+    """``work(spec)`` in a subprocess; on failure, None and a note that ``what`` failed."""
+    result, failed = in_subprocess(spec)
+    if failed:
+        notes.append(f"{what} failed: {failed}")
+    return result
+
+
+def _measure_sections(info, repeats, progress, notes, cuda_size, stack, pipeline_size,
+                      ramp_size, ramp_groups):
+    """The sections after the floor, each in a subprocess of its own (the
+    start-up row runs its own): ``{"pipeline", "ramp", "cuda", "calibrate",
+    "startup"}``, those run; a failed one None with a note in ``notes``."""
+    found = {}
+    if pipeline_size:
         if _has_module("jwst"):
             progress(f"  constant law beside the JWST ipc step, {pipeline_size}x{pipeline_size}")
-            pipeline, failed = in_subprocess({"config": "pipeline", "size": pipeline_size,
-                                       "repeats": 3})
-            if failed:
-                notes.append(f"The row beside the JWST ipc step failed: {failed}")
+            found["pipeline"] = _launch({"config": "pipeline", "size": pipeline_size,
+                                         "repeats": 3}, "The row beside the JWST ipc step", notes)
         else:
             notes.append("The jwst package is not installed: the row beside the JWST ipc "
                          "step was not run (pip install 'ipc_taichi[jwst]').")
-    ramp = None
-    if measure and ramp_size:
+    if ramp_size:
         progress(f"  a {ramp_size}x{ramp_size} x {ramp_groups} ramp, from scratch and warm")
-        ramp, failed = in_subprocess({"config": "ramp", "size": ramp_size,
-                                      "groups": ramp_groups, "repeats": 5})
-        if failed:
-            notes.append(f"The ramp row failed: {failed}")
-    cuda = None
-    if measure and info["cuda"] and cuda_size:
+        found["ramp"] = _launch({"config": "ramp", "size": ramp_size, "groups": ramp_groups,
+                                 "repeats": 5}, "The ramp row", notes)
+    if info["cuda"] and cuda_size:
         progress(f"  CUDA rows at {cuda_size}x{cuda_size} (stack of {stack})")
-        cuda, failed = in_subprocess({"config": "cuda-suite", "size": cuda_size,
-                               "repeats": max(repeats, 10), "stack": stack})
-        if failed:
-            notes.append(f"The CUDA rows failed: {failed}")
-    calibrate = None
-    if measure:
-        progress("  calibrate on a 2048x2048 x 10-group dark ramp")
-        calibrate, failed = in_subprocess({"config": "calibrate", "size": 2048, "groups": 10})
-        if failed:
-            notes.append(f"The calibrate row failed: {failed}")
-    startup = None
-    if measure:
-        progress("  start-up: ipc-taichi --help and a 64x64 decouple, fresh processes")
-        try:
-            startup = measure_startup(repeats)
-        except RuntimeError as exc:
-            notes.append(f"The start-up row failed: {exc}")
-    return {"machine": info, "repeats": repeats, "notes": notes, "rows": rows, "floor": floor,
-            "pipeline": pipeline, "ramp": ramp, "calibrate": calibrate, "cuda": cuda,
-            "startup": startup}
+        found["cuda"] = _launch({"config": "cuda-suite", "size": cuda_size,
+                                 "repeats": max(repeats, 10), "stack": stack},
+                                "The CUDA rows", notes)
+    progress("  calibrate on a 2048x2048 x 10-group dark ramp")
+    found["calibrate"] = _launch({"config": "calibrate", "size": 2048, "groups": 10},
+                                 "The calibrate row", notes)
+    progress("  start-up: ipc-taichi --help and a 64x64 decouple, fresh processes")
+    try:
+        found["startup"] = measure_startup(repeats)
+    except RuntimeError as exc:
+        notes.append(f"The start-up row failed: {exc}")
+    return found
 
 
 def _add_ratios(rows):
