@@ -72,7 +72,8 @@ __all__ = [
     "CudaDriver", "cuda_driver", "CUDA_ERROR_HOST_MEMORY_ALREADY_REGISTERED", "HostCopies",
     "kind_of", "torch_stream_order",
     # kernels
-    "KernelConfig", "StepPlan", "get_step_kernel", "get_frame_kernels", "get_reduce_kernel", "tree_rows",
+    "KernelConfig", "StepPlan", "get_step_kernel", "get_frame_kernels", "get_reduce_kernel",
+    "tree_rows",
     "FAN_IN", "make_alpha", "make_exp", "kernel_law_kind", "clear_kernels",
     # settings for a while
     "device_buffers", "pixel_runs", "reduction_fan_in", "step_kernels_built",
