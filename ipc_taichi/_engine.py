@@ -45,6 +45,7 @@ from ._device import (
     torch_dtype,
     torch_stream_order,
 )
+from ._frames import finite_sum
 from ._inputs import Frames, as_result, as_stack
 from ._kernels import (
     KernelConfig,
@@ -493,18 +494,13 @@ def _load_host(host, bad, io, ws, shift=None):
     than the work on small tiles. Returns ``(base, any_bad)``: ``base`` is the
     caller's frame itself when it can be read as it is (runtime dtype,
     C-contiguous, no bad pixel), else ``io`` holding it with bad pixels zeroed."""
-    # a finite sum means every pixel is finite (NaN and inf propagate): one
-    # read of the frame and no temporary in the common case; taken before any
-    # conversion when the caller's frame is float32 or float64 (a float32
-    # frame for an f64 run: half the bytes; a sum that overflows takes the
-    # per-pixel test below)
-    early = host.dtype in (np.float32, np.float64)
-    all_finite = bad is None and early and _finite_sum(host)
+    # a finite sum means every pixel is finite (NaN and inf propagate): one read
+    # of the frame, no temporary; of a float frame before its conversion (f32 for
+    # an f64 run: half the bytes; an overflowing sum takes the per-pixel test)
+    all_finite = bad is None and finite_sum(host)
     if not _uploadable(host, ws.dtype):
         np.copyto(io, host, casting="unsafe")
         host = io
-    if bad is None and not early:
-        all_finite = _finite_sum(host)
     if all_finite:
         good, any_bad = None, False
     else:
@@ -529,13 +525,6 @@ def _load_host(host, bad, io, ws, shift=None):
         interior(ws.ok, ws.reach)[...] = True if good is None else good
         ws.ok_clean = not any_bad
     return base, any_bad
-
-
-def _finite_sum(frame):
-    """Whether the sum of ``frame`` is finite (then so is every pixel); an
-    overflow of the sum is no error, it only sends the caller to the per-pixel test."""
-    with np.errstate(over="ignore", invalid="ignore"):
-        return bool(np.isfinite(frame.sum()))
 
 
 def _flat(array):

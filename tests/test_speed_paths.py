@@ -242,3 +242,6 @@ def test_float32_frame_checked_before_conversion(cpu, rng):
     assert got.dtype == np.float64 and np.isnan(got[2, 8, 8])
     np.testing.assert_array_equal(got, want)
     assert np.isfinite(np.delete(got[2].ravel(), 8 * 19 + 8)).all()
+    half = rng.uniform(100.0, 3000.0, (17, 19)).astype(np.float16)  # its own sum overflows
+    np.testing.assert_array_equal(ipc_taichi.decouple(half, precision="f64"),
+                                  ipc_taichi.decouple(half.astype(np.float64), precision="f64"))
