@@ -69,6 +69,13 @@ Two loop layouts, chosen at compile time (``KernelConfig.layout``):
     (arithmetic is cheap on a GPU, memory traffic is not). The layout also
     runs on the CPU, which is how it is tested without a GPU.
 
+A constant law without ``ok`` gating (no bad pixel, the ``zero`` edge) takes
+the flow with coefficients combined once per thread (:attr:`StepPlan.combined`):
+``sum_k a w[k, 1] S(p+u) + a w[k, 0] S(p-u) - (a sum_k (w[k, 0] + w[k, 1])) S(p)``,
+two multiply-adds per offset instead of ten operations (1.2-1.4x faster per
+iteration; the same values to rounding: at most one float32 unit, 4e-15
+relative in f64, on the recorded cases).
+
 Compile-time (``ti.static``) choices form a frozen, hashable config
 (:class:`KernelConfig`); :class:`StepPlan` adds what follows from it (where
 each carried alpha lives), and :func:`get_step_kernel` composes a layout's
