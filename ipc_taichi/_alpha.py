@@ -11,9 +11,11 @@ __all__ = ["kernel_law_kind", "make_exp", "make_alpha"]
 def kernel_law_kind(law):
     """The kernel's law kind for ``law``: ``"constant"`` for a parametric law
     whose amplitudes are both zero (alpha is its floor whatever the signals:
-    the kernel evaluates nothing, and its results are bit-identical to the
-    general kernel's, where ``0 * exp(.) + 0 * exp(.) + floor`` is exactly the
-    floor), else the law's own kind (``"parametric"``, ``"table"``)."""
+    the kernel evaluates nothing; with ``ok`` gating its results are
+    bit-identical to the general kernel's, where ``0 * exp(.) + 0 * exp(.) +
+    floor`` is exactly the floor; without, it sums the flow with pre-combined
+    coefficients, ``StepPlan.combined``, equal to rounding), else the law's own
+    kind (``"parametric"``, ``"table"``)."""
     if law.kind == "parametric" and law.amp_diff == 0 and law.amp_level == 0:
         return "constant"
     return law.kind

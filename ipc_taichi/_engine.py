@@ -45,6 +45,7 @@ from ._device import (
     torch_dtype,
     torch_stream_order,
 )
+from ._frames import finite_sum
 from ._inputs import Frames, as_result, as_stack
 from ._kernels import (
     KernelConfig,
@@ -493,12 +494,14 @@ def _load_host(host, bad, io, ws, shift=None):
     than the work on small tiles. Returns ``(base, any_bad)``: ``base`` is the
     caller's frame itself when it can be read as it is (runtime dtype,
     C-contiguous, no bad pixel), else ``io`` holding it with bad pixels zeroed."""
+    # a finite sum means every pixel is finite (NaN and inf propagate): one read
+    # of the frame, no temporary; of a float frame before its conversion (f32 for
+    # an f64 run: half the bytes; an overflowing sum takes the per-pixel test)
+    all_finite = bad is None and finite_sum(host)
     if not _uploadable(host, ws.dtype):
         np.copyto(io, host, casting="unsafe")
         host = io
-    # a finite sum means every pixel is finite (NaN and inf propagate): one
-    # read of the frame and no temporary in the common case
-    if bad is None and np.isfinite(host.sum()):
+    if all_finite:
         good, any_bad = None, False
     else:
         good = np.isfinite(host)

@@ -3,13 +3,16 @@ the step (:mod:`ipc_taichi._kernels`): ``load`` (unpadded frame -> padded
 estimate, bad pixels zeroed, ``ok`` written, one flag set if any pixel is bad)
 and ``store`` (padded estimate -> unpadded frame), so that padding and
 initialisation happen where the arrays live (on the GPU for CUDA). On the CPU
-the engine does the same with NumPy (:func:`ipc_taichi._engine._load_host`).
+the engine does the same with NumPy (:func:`ipc_taichi._engine._load_host`),
+its finiteness test by :func:`finite_sum`.
 """
 
 import functools
 from dataclasses import dataclass
 
-__all__ = ["FrameKernels", "get_frame_kernels", "MAX_FINITE"]
+import numpy as np
+
+__all__ = ["FrameKernels", "get_frame_kernels", "finite_sum", "MAX_FINITE"]
 
 MAX_FINITE = {"f64": 1.7976931348623157e308, "f32": 3.4028234663852886e38}
 
@@ -71,3 +74,13 @@ def get_frame_kernels(precision):
             io[i, j] = src[i + r, j + r]
 
     return FrameKernels(load, store)
+
+
+def finite_sum(frame):
+    """Whether the sum of a NumPy ``frame`` is finite: then so is every pixel
+    (NaN and inf propagate), found in one read and no temporary. Summed in
+    float64 for types narrower than float32 (a float16 sum overflows); an
+    overflowing sum is no warning, only ``False`` (the caller then tests
+    each pixel)."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        return bool(np.isfinite(frame.sum(dtype=np.float64 if frame.itemsize < 4 else None)))

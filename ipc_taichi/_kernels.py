@@ -69,6 +69,13 @@ Two loop layouts, chosen at compile time (``KernelConfig.layout``):
     (arithmetic is cheap on a GPU, memory traffic is not). The layout also
     runs on the CPU, which is how it is tested without a GPU.
 
+A constant law without ``ok`` gating (no bad pixel, the ``zero`` edge) takes
+the flow with coefficients combined once per thread (:attr:`StepPlan.combined`):
+``sum_k a w[k, 1] S(p+u) + a w[k, 0] S(p-u) - (a sum_k (w[k, 0] + w[k, 1])) S(p)``,
+two multiply-adds per offset instead of ten operations (1.2-1.4x faster per
+iteration; the same values to rounding: at most one float32 unit, 4e-15
+relative in f64, on the recorded cases).
+
 Compile-time (``ti.static``) choices form a frozen, hashable config
 (:class:`KernelConfig`); :class:`StepPlan` adds what follows from it (where
 each carried alpha lives), and :func:`get_step_kernel` composes a layout's
@@ -278,10 +285,26 @@ class StepPlan:
         return 2 * len(self.config.offsets)
 
     @property
+    def combined(self):
+        """Whether the flow is taken with pre-combined coefficients: a
+        constant law with no ``ok`` gating, where every pair's alpha is the
+        same number ``a``, so ``flow = sum_k (a w[k, 1] S(p+u) + a w[k, 0]
+        S(p-u)) - (a sum_k (w[k, 0] + w[k, 1])) S(p)``: 2 multiply-adds per
+        offset and one product, instead of 10 operations per offset."""
+        return self.config.law_kind == "constant" and not self.config.uses_ok
+
+    @property
+    def combined_at(self):
+        """Where the pre-combined coefficients start (:attr:`combined`): per
+        offset ``a w[k, 1]`` and ``a w[k, 0]``, then ``a sum_k (w[k, 0] + w[k, 1])``."""
+        return self.law_at + 5
+
+    @property
     def n_coef(self):
         """Registers of ``coefficients``: two weights per offset, then the law's
-        5 parameters (a constant law's alpha last)."""
-        return self.law_at + 5
+        5 parameters (a constant law's alpha last), then the pre-combined
+        coefficients when :attr:`combined`."""
+        return self.combined_at + (2 * len(self.config.offsets) + 1 if self.combined else 0)
 
     @property
     def rings(self):

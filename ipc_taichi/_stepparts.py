@@ -91,6 +91,7 @@ def law_functions(plan):
     alpha = make_alpha(config.law_kind, config.precision, fast_exp=config.layout == "sweep",
                        flat_table=config.flat)
     cell = access_functions(plan)[0]
+    total_at = plan.combined_at + 2 * len(config.offsets)  # a sum_k (w[k, 0] + w[k, 1])
 
     @ti.func
     def coefficients(p: ti.template(), w: ti.template()):
@@ -104,6 +105,14 @@ def law_functions(plan):
             coef[2 * k + 1] = w[k, 1]
         for m in ti.static(range(5)):
             coef[law_at + m] = p[m]
+        if ti.static(plan.combined):
+            a = coef[law_at + 4]
+            total = ti.cast(0.0, real)
+            for k in ti.static(range(len(config.offsets))):
+                coef[plan.combined_at + 2 * k] = a * coef[2 * k + 1]
+                coef[plan.combined_at + 2 * k + 1] = a * coef[2 * k]
+                total += coef[2 * k] + coef[2 * k + 1]
+            coef[total_at] = a * total
         return coef
 
     @ti.func
@@ -143,6 +152,7 @@ def flow_functions(plan, pair, pair_of):
     offsets, sources, real = plan.config.offsets, plan.sources, real_type(plan)
     r = plan.config.reach
     cell, put, ring_cell, ring_put = access_functions(plan)
+    total_at = plan.combined_at + 2 * len(offsets)  # a sum_k (w[k, 0] + w[k, 1])
 
     @ti.func
     def pair_flow(flow, src: ti.template(), coef: ti.template(), pw, y, x, sv,
@@ -155,6 +165,18 @@ def flow_functions(plan, pair, pair_of):
         wm = coef[2 * k + 1]  # weight of the move p -> p-u
         return (flow + a_plus * (wm * cell(src, y + dy, x + dx, pw) - wp * sv)
                 + a_minus * (wp * cell(src, y - dy, x - dx, pw) - wm * sv))
+
+    @ti.func
+    def combined_flow(src: ti.template(), coef: ti.template(), pw, y, x, sv):
+        """The coupling term of a constant law without ``ok`` gating, from the
+        pre-combined coefficients (see :attr:`~ipc_taichi._kernels.StepPlan.combined`)."""
+        at = ti.static(plan.combined_at)
+        gain = ti.cast(0.0, real)
+        for k in ti.static(range(len(offsets))):
+            dy, dx = ti.static(offsets[k])
+            gain += (coef[at + 2 * k] * cell(src, y + dy, x + dx, pw)
+                     + coef[at + 2 * k + 1] * cell(src, y - dy, x - dx, pw))
+        return gain - coef[total_at] * sv
 
     @ti.func
     def shift_in(carry: ti.template(), at: ti.template(), n: ti.template(), a):
@@ -172,7 +194,9 @@ def flow_functions(plan, pair, pair_of):
         """The coupling term at padded (y, x) (row ``i`` of the frame); the
         alphas it computes are carried for the pixels that reuse them."""
         flow = ti.cast(0.0, real)
-        for k in ti.static(range(len(offsets))):
+        if ti.static(plan.combined):
+            flow = combined_flow(src, coef, pw, y, x, sv)
+        for k in ti.static(range(len(offsets) if not plan.combined else 0)):
             dy, dx = ti.static(offsets[k])
             a_plus = pair_of(src, ok, table, coef, pw, sv, y, x, dy, dx)
             a_minus = ti.cast(0.0, real)

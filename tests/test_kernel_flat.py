@@ -49,6 +49,12 @@ def test_flat_is_the_host_paths_config(cpu):
     pixel = StepPlan.of(KernelConfig(((0, 1), (1, 0)), "table", "zero", False, "f32",
                                      "pixel", flat=False))
     assert pixel.sources == ("fresh", "column") and not pixel.config.flat
+    constant = KernelConfig(((0, 1), (1, 0)), "constant", "zero", False, "f32")
+    assert StepPlan.of(constant).combined and StepPlan.of(constant).n_coef == 4 + 5 + 5
+    for gated in (KernelConfig(((0, 1), (1, 0)), "constant", "zero", True, "f32"),
+                  KernelConfig(((0, 1), (1, 0)), "constant", "isolated", False, "f32"),
+                  KernelConfig(((0, 1), (1, 0)), "parametric", "zero", False, "f32")):
+        assert not StepPlan.of(gated).combined and StepPlan.of(gated).n_coef == 4 + 5
     with pytest.raises(ValueError, match="unknown kernel layout"):
         StepPlan.of(KernelConfig(((0, 1),), "table", "zero", False, "f32", "diagonal"))
 

@@ -222,3 +222,26 @@ def test_issue_28_rows_beside_the_jwst_step(cpu):
     text = render_pipeline(result)
     assert "table 257x257 (cpu f32, warm start)" in text
     assert f"**{general['vs_floor']:.1f}x the streaming floor**" in text
+
+
+# --------------------------------------------------------------------------- host load
+
+
+def test_float32_frame_checked_before_conversion(cpu, rng):
+    """An f64 run on float32 frames checks finiteness on the float32 frame: a
+    frame whose float32 sum overflows (finite pixels near the float32 maximum)
+    takes the per-pixel test and is decoupled like the same frame in float64;
+    a NaN pixel is still found (NaN out, its neighbours decoupled with it zeroed)."""
+    frame = rng.uniform(100.0, 3000.0, (3, 17, 19)).astype(np.float32)
+    frame[0, 4, 5] = frame[0, 12, 14] = 3.0e38  # the float32 sum: inf
+    with np.errstate(over="ignore"):
+        assert not np.isfinite(frame[0].sum()) and np.isfinite(frame).all()
+    frame[2, 8, 8] = np.nan
+    got = ipc_taichi.decouple(frame, precision="f64", law="constant:0.0125")
+    want = ipc_taichi.decouple(frame.astype(np.float64), precision="f64", law="constant:0.0125")
+    assert got.dtype == np.float64 and np.isnan(got[2, 8, 8])
+    np.testing.assert_array_equal(got, want)
+    assert np.isfinite(np.delete(got[2].ravel(), 8 * 19 + 8)).all()
+    half = rng.uniform(100.0, 3000.0, (17, 19)).astype(np.float16)  # its own sum overflows
+    np.testing.assert_array_equal(ipc_taichi.decouple(half, precision="f64"),
+                                  ipc_taichi.decouple(half.astype(np.float64), precision="f64"))
