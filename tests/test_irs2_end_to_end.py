@@ -199,3 +199,24 @@ def test_miri_reference_columns_untouched(cpu, tmp_path):
         np.testing.assert_array_equal(_bits(out[..., columns]), _bits(before[..., columns]))
         assert np.abs(out[..., 4:-4] - before[..., 4:-4]).max() > 1.0  # the rest corrected
     np.testing.assert_array_equal(np.asarray(result.data), from_file)
+
+
+def test_irs2_pedestal_image_in_the_product_frame(cpu, tmp_path):
+    """A pedestal image is given in the product's frame (3200x2048 for IRS2)
+    and taken to the science image with the frames: 500 e- on every science
+    row (1e6 on the reference samples) is the number 500."""
+    model, _, geometry = _irs2_ramp("NRS1")
+    src = tmp_path / "jw01_irs2_ramp.fits"
+    model.save(src)
+    image = np.full(geometry.shape, 1e6, np.float32)
+    image[irs2.science_rows(geometry)] = 500.0
+    pedestal = tmp_path / "pedestal.fits"
+    fits.PrimaryHDU(image).writeto(pedestal)
+    out = {}
+    for name, option in (("image", str(pedestal)), ("number", 500.0)):
+        dst = tmp_path / f"{name}.fits"
+        process_product(src, dst, "decouple", model=CouplingModel.resolve(LAW), gain=GAIN,
+                        pedestal=option)
+        with fits.open(dst) as hdul:
+            out[name] = np.array(hdul["SCI"].data)
+    np.testing.assert_array_equal(out["image"], out["number"])

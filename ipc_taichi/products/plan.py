@@ -454,16 +454,18 @@ def _first(facts, options_value, keys, kind=None):
     return None
 
 
-def _pedestal(facts, options, gain, zeroth):
-    """The pedestal of one array, electrons (None when none)."""
+def _pedestal(facts, options, gain, zeroth, layout):
+    """The pedestal of one array, electrons (None when none), in the science
+    image's shape (a pedestal image is given in the product's frame shape)."""
     option = "auto" if options.pedestal is None else options.pedestal
     shape2d = tuple(facts.shape[-2:])
     if facts.zeroth:
         return None
     if option not in ("none", "auto", False, 0, "0"):
-        frame = read_frame(option, shape2d, "pedestal")
-        value = np.broadcast_to(np.asarray(frame, dtype=np.float64), shape2d)
-        return value
+        frame = np.asarray(read_frame(option, shape2d, "pedestal"), dtype=np.float64)
+        if frame.ndim == 2:
+            frame = layout.arrangement.to_science(frame)
+        return np.broadcast_to(frame, tuple(layout.shape))
     if option == "auto" and zeroth is not None:
         if tuple(zeroth.shape2d) != shape2d:
             raise IPCInputError(f"{facts.label}: the zeroth read has another shape")
@@ -532,7 +534,7 @@ def plan_array(facts, mission, model, options, zeroth=None):
                                         time_source=mission.time_source, coadds=coadds,
                                         gain_source=mission.gain_source)
     inner, reason = edge_of(model, options.edge, layout)
-    pedestal = _pedestal(facts, options, gain, zeroth)
+    pedestal = _pedestal(facts, options, gain, zeroth, layout)
     if pedestal is not None and options.tile:
         raise IPCInputError(f"{facts.label}: --tile cannot add the pedestal (zeroth read); run "
                             "without --tile, or give --pedestal none")
