@@ -10,11 +10,9 @@ import numpy as np
 
 from ..errors import IPCInputError
 from .fitsfile import open_fits
-from .missions import is_asdf
+from .missions import ROMAN, is_asdf
 
 __all__ = ["read_gain", "read_frame"]
-
-_ROMAN_FULL_FRAME = (4096, 4096)
 
 
 def read_gain(gain, shape2d):
@@ -49,8 +47,9 @@ def read_frame(gain, shape2d, what):
         except Exception as exc:
             raise IPCInputError(f"{text}: not a readable {what} file ({type(exc).__name__})"
                                 ) from None
-        if image.shape == _ROMAN_FULL_FRAME and tuple(shape2d) == (4088, 4088):
-            image = image[4:-4, 4:-4]
+        if image.shape == ROMAN["full_frame"] and tuple(shape2d) == ROMAN["science_area"]:
+            b = ROMAN["border"]
+            image = image[b:-b, b:-b]
     else:
         try:
             hdul = open_fits(text, memmap=False)
