@@ -16,6 +16,7 @@ import pytest
 import ipc_taichi
 from ipc_taichi.calibrate import calibrate, hotpixels
 from ipc_taichi.calibrate.inputs import read_frames
+from ipc_taichi.calibrate.report import summary_lines
 
 DARK = os.path.join(os.path.dirname(__file__), "data", "jwst_nirspec_nrs1_dark_sub512.fits")
 GAIN = 1.0
@@ -59,6 +60,10 @@ def test_real_nirspec_dark_is_measured(cpu, measured):
     model = result["model"]
     assert model.law.alpha(10000.0, 0.0) < 0.7 * ipc_taichi.laws.donlon2018().alpha(10000.0, 0.0)
     assert any("alpha(S,S) assumed" in a for a in report["fit"]["assumed"])
+    # the DQ names this file's own DQ_DEF lacks are said where the run is read
+    line = next(x for x in summary_lines(report, model) if x.startswith("input (dark)"))
+    assert line.endswith("[DQ_DEF] defines no SATURATED, JUMP_DET, DEAD: those pixels are not "
+                         "left out by name")
 
 
 def test_real_nirspec_dark_decoupled_with_its_model(cpu, measured):

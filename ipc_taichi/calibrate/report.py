@@ -64,7 +64,8 @@ def summary_lines(document, model):
     the held-out check, what was assumed or not measured."""
     lines = []
     for item in document.get("inputs", []):
-        what = "; ".join(x for x in (item.get("layout_reason"), item.get("units_note")) if x)
+        what = "; ".join(x for x in (item.get("layout_reason"), item.get("units_note"),
+                                     item.get("dq_note")) if x)
         lines.append(f"input ({item['role']}): {item['file']}: {what}")
     g = document.get("gain") or {}
     if g.get("measured") is not None:

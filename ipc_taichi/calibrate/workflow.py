@@ -511,4 +511,5 @@ def _sections(effects, fit):
 def _input_record(f, role):
     return {"file": f.label, "role": role, "layout": f.meta.get("layout"),
             "layout_reason": f.meta.get("layout_reason"), "units": f.units,
-            "units_note": f.meta.get("units_note"), "shape": list(f.data.shape)}
+            "units_note": f.meta.get("units_note"), "dq_note": f.meta.get("dq_note"),
+            "shape": list(f.data.shape)}
