@@ -26,6 +26,7 @@ frame) the border is named with ``--refpix 4``.
 """
 
 import os
+import resource
 import statistics
 import subprocess
 import sys
@@ -106,9 +107,15 @@ def copy_through_cli_io(input_path, output_path, index=1):
                 del out
 
 
+def _children_cpu():
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
+
+
 def _timed(argv):
-    """``python ARGV`` in a fresh process: wall seconds (an error: RuntimeError
-    with its last line)."""
+    """``python ARGV`` in a fresh process: ``(wall seconds, CPU seconds)`` (an
+    error: RuntimeError with its last line)."""
+    cpu = _children_cpu()
     start = time.perf_counter()
     proc = subprocess.run([sys.executable, *argv], capture_output=True, text=True,
                           env=dict(os.environ, ENABLE_TAICHI_HEADER_PRINT="False"))
@@ -116,7 +123,7 @@ def _timed(argv):
     if proc.returncode != 0:
         tail = (proc.stderr.strip().splitlines() or ["no output"])[-1]
         raise RuntimeError(f"{' '.join(argv[:3])}: exit {proc.returncode}: {tail}")
-    return seconds
+    return seconds, _children_cpu() - cpu
 
 
 def _commands(src, out, refpix):
@@ -157,7 +164,7 @@ def _warm_up(work, refpix):
         _timed(_commands(small, outs, BORDER)[k])
 
 
-def _rows(times, heads, refpix):
+def _rows(times, cpu, heads, refpix):
     """The table: one row per run, with its ratio to (a)."""
     a = statistics.median(times["a"])
     border = "" if refpix is None else f" --refpix {refpix}"
@@ -170,13 +177,14 @@ def _rows(times, heads, refpix):
     for k in "abc":
         median = statistics.median(times[k])
         rows.append({"run": what[k], "median [s]": median, "min [s]": min(times[k]),
+                     "CPU [s] (median)": statistics.median(cpu[k]),
                      "x (a)": f"{median / a:.2f}x", "most iterations of a group": its[k]})
     rows[1]["x (a)"] += (f" (target <= {TARGET_RATIO:g}x: "
                          f"{'met' if rows[1]['median [s]'] <= TARGET_RATIO * a else 'NOT met'})")
     return rows
 
 
-def measure_cliramp(size=CLIRAMP_SIZE, groups=CLIRAMP_GROUPS, repeats=1, workdir=None):
+def measure_cliramp(size=CLIRAMP_SIZE, groups=CLIRAMP_GROUPS, repeats=3, workdir=None):
     """Time a Roman-like ramp FITS file read + written, decoupled through the
     command line (warm starts) and from scratch, each in fresh processes.
 
@@ -195,8 +203,10 @@ def measure_cliramp(size=CLIRAMP_SIZE, groups=CLIRAMP_GROUPS, repeats=1, workdir
     -------
     dict
         A section for :func:`ipc_taichi.bench.render.render_section`:
-        ``title``, ``rows`` (per run: median and min wall seconds, the ratio to
-        (a), the iterations), ``notes``; and ``times_s`` (run -> seconds),
+        ``title``, ``rows`` (per run: median and min wall seconds, median CPU
+        seconds (user + system, the process and its children), the ratio to
+        (a), the iterations), ``notes``; and ``times_s`` and ``cpu_s`` (run ->
+        seconds),
         ``ratio`` (median b / median a), ``met`` (ratio <= :data:`TARGET_RATIO`),
         ``max_diff`` and ``tolerance`` (per group, electrons),
         ``within_tolerance``, ``precision``.
@@ -211,10 +221,12 @@ def measure_cliramp(size=CLIRAMP_SIZE, groups=CLIRAMP_GROUPS, repeats=1, workdir
         _warm_up(work, refpix)
         outs = {k: os.path.join(work, f"out-{k}.fits") for k in "abc"}
         commands = _commands(src, outs, refpix)
-        times = {k: [] for k in "abc"}
+        times, cpu = {k: [] for k in "abc"}, {k: [] for k in "abc"}
         for _ in range(repeats):
             for k in "abc":
-                times[k].append(_timed(commands[k]))
+                wall, used = _timed(commands[k])
+                times[k].append(wall)
+                cpu[k].append(used)
         diffs, scales, heads = compare_outputs(outs["b"], outs["c"])
         file_bytes = os.path.getsize(src)
     within = all(d <= s for d, s in zip(diffs, scales))
@@ -239,7 +251,7 @@ def measure_cliramp(size=CLIRAMP_SIZE, groups=CLIRAMP_GROUPS, repeats=1, workdir
     ]
     return {"title": f"A Roman-like ramp through the CLI: {size}x{size} x {groups} f32, "
                      f"law {CLIRAMP_LAW} (issue 28: <= {TARGET_RATIO:g}x read + write)",
-            "rows": _rows(times, heads, refpix), "notes": notes,
-            "times_s": times, "ratio": ratio, "met": ratio <= TARGET_RATIO,
+            "rows": _rows(times, cpu, heads, refpix), "notes": notes,
+            "times_s": times, "cpu_s": cpu, "ratio": ratio, "met": ratio <= TARGET_RATIO,
             "max_diff": diffs, "tolerance": scales, "within_tolerance": within,
             "precision": heads[0][1]}
