@@ -17,6 +17,7 @@ from ..calibrate.benchmark import measure_calibrate
 from ..datasets import star_field, uniform_frame
 from ..gpus import cuda_present
 from ..reference import couple_reference
+from .cliramp import CLIRAMP_GROUPS, CLIRAMP_SIZE, measure_cliramp
 from .cpu import KINDS, NUMPY_REPEAT_CAP, REFERENCE_MAX_SIZE, SIZES, measure_floor, measure_row
 from .cuda import CUDA_SIZE, STACK_FRAMES, measure_cuda
 from .pipeline import PIPELINE_SIZE, measure_pipeline_ipc
@@ -40,6 +41,8 @@ def work(spec):
     if config == "ramp":
         return measure_ramp(size=spec["size"], groups=spec["groups"],
                             precision=spec.get("precision", "f32"), repeats=spec["repeats"])
+    if config == "cliramp":
+        return measure_cliramp(size=spec["size"], groups=spec["groups"])
     if config == "calibrate":
         flats = {k: spec[k] for k in ("flat_size", "flat_ints", "flat_groups") if k in spec}
         return calibrate_section(measure_calibrate(spec.get("size", 2048),
@@ -158,7 +161,7 @@ def run_benchmark(sizes=SIZES, kinds=KINDS, repeats=5, configs=None, progress=pr
     _add_ratios(rows)
     results = {"machine": info, "repeats": repeats, "notes": notes, "rows": rows,
                "floor": floor_model(info), "pipeline": None, "ramp": None, "calibrate": None,
-               "cuda": None, "startup": None}
+               "cuda": None, "startup": None, "cliramp": None}
     if measure:
         results["floor"]["measured"] = _launch({"config": "floor"}, "The floor measurement",
                                                notes)
@@ -223,7 +226,7 @@ def _measure_sections(info, repeats, progress, notes, cuda_size, stack, pipeline
                       ramp_size, ramp_groups):
     """The sections after the floor, each in a subprocess of its own (the
     start-up row runs its own): ``{"pipeline", "ramp", "cuda", "calibrate",
-    "startup"}``, those run; a failed one None with a note in ``notes``."""
+    "cliramp", "startup"}``, those run; a failed one None with a note in ``notes``."""
     found = {}
     if pipeline_size:
         if _has_module("jwst"):
@@ -245,6 +248,9 @@ def _measure_sections(info, repeats, progress, notes, cuda_size, stack, pipeline
     progress("  calibrate on a 2048x2048 x 10-group dark ramp")
     found["calibrate"] = _launch({"config": "calibrate", "size": 2048, "groups": 10},
                                  "The calibrate row", notes)
+    progress(f"  a {CLIRAMP_SIZE}x{CLIRAMP_SIZE} x {CLIRAMP_GROUPS} ramp FITS through the CLI")
+    found["cliramp"] = _launch({"config": "cliramp", "size": CLIRAMP_SIZE,
+                                "groups": CLIRAMP_GROUPS}, "The CLI ramp row", notes)
     progress("  start-up: ipc-taichi --help and a 64x64 decouple, fresh processes")
     try:
         found["startup"] = measure_startup(repeats)

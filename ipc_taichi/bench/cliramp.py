@@ -1,0 +1,265 @@
+"""The bench row of a Roman-like ramp through the command line (issue 28).
+
+A FITS file like a Roman WFI ramp (:func:`write_ramp_fits`: ``groups``
+resultants of ``size x size`` float32 pixels, a 4-pixel reference border,
+``BUNIT = 'electrons'``, a star field on a sky, each resultant's new charge
+Poisson-drawn and accumulated, the science area coupled with
+:data:`CLIRAMP_LAW`) is processed three ways, each in a fresh process, the
+wall time of the whole process measured as a user waits for it:
+
+- (a) ``read + write``: the file read and written through the command line's
+  own I/O (:func:`copy_through_cli_io`: the checked open, the output skeleton,
+  the science array read and written through a memory map of a temporary file,
+  renamed into place), without the correction, in a process that imports
+  only that I/O;
+- (b) ``ipc-taichi decouple IN OUT --law constant:0.01 --quiet``: the groups
+  decoupled with warm starts (``ProductOptions.warm_start``, the default for
+  ramps);
+- (c) the same from scratch: the command line has no switch for warm starts,
+  so (c) calls what it calls, :func:`ipc_taichi.products.decouple_file`, with
+  the same law and ``warm_start=False``.
+
+The row reports b / a beside the issue's target (at most 3x) and the largest
+difference between the outputs of (b) and (c), per group, beside the
+stopping rule's ``tol x max|S|`` of that group (``S``: the from-scratch
+answer), the tolerance both meet. Away from 4096 x 4096 (not a Roman full
+frame) the border is named with ``--refpix 4``.
+"""
+
+import inspect
+import os
+import resource
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+
+import numpy as np
+from astropy.io import fits
+
+import ipc_taichi
+
+from .. import iteration
+from ..datasets import star_field
+from ..fitsio import atomic_output
+from ..products.fitsfile import open_fits, read_array, science_header, write_skeleton
+
+__all__ = ["measure_cliramp", "write_ramp_fits", "copy_through_cli_io", "compare_outputs",
+           "IO_IMPORTS", "CLIRAMP_SIZE", "CLIRAMP_GROUPS", "CLIRAMP_LAW", "TARGET_RATIO"]
+
+IO_IMPORTS = ("import numpy as np\nfrom ipc_taichi.fitsio import atomic_output\n"
+              "from ipc_taichi.products.fitsfile import open_fits, read_array, science_header, "
+              "write_skeleton\n")
+"""The imports of :func:`copy_through_cli_io`, for the fresh process of (a)."""
+
+CLIRAMP_SIZE = 4096
+CLIRAMP_GROUPS = 12
+CLIRAMP_LAW = "constant:0.01"
+TARGET_RATIO = 3.0  # issue 28: the decouple at most 3x the file's read + write
+BORDER = 4  # Roman's reference border, pixels
+SKY = 40.0  # electrons per resultant on every science pixel
+READ_NOISE = 5.0  # electrons (rms) in the reference pixels
+
+
+def write_ramp_fits(path, size=CLIRAMP_SIZE, groups=CLIRAMP_GROUPS, law=CLIRAMP_LAW, seed=7):
+    """Write a Roman-like ramp FITS file to ``path``.
+
+    The primary HDU holds ``TELESCOP = 'ROMAN'``, ``INSTRUME = 'WFI'``; the
+    ``SCI`` HDU a float32 cube ``(groups, size, size)`` in electrons. Science
+    area: a star field (:func:`ipc_taichi.datasets.star_field`, its full
+    signal reached at the last resultant) plus :data:`SKY` e- per resultant,
+    each resultant's new charge Poisson-drawn and accumulated, then coupled
+    with ``law`` (zero edge). Reference border (:data:`BORDER` pixels): no
+    charge, Gaussian read noise of :data:`READ_NOISE` e-. Frame by frame, so
+    memory holds the cube once.
+    """
+    rng = np.random.default_rng(seed)
+    inner = size - 2 * BORDER
+    rate = star_field(inner, seed=seed) / groups + SKY
+    cube = rng.normal(0.0, READ_NOISE, (groups, size, size)).astype(np.float32)
+    truth = np.zeros((inner, inner))
+    for g in range(groups):
+        truth += rng.poisson(rate)
+        cube[g, BORDER:-BORDER, BORDER:-BORDER] = ipc_taichi.couple(truth, law=law, edge="zero")
+    primary = fits.PrimaryHDU()
+    primary.header["TELESCOP"] = "ROMAN"
+    primary.header["INSTRUME"] = "WFI"
+    sci = fits.ImageHDU(cube, name="SCI")
+    sci.header["BUNIT"] = "electrons"
+    fits.HDUList([primary, sci]).writeto(path, overwrite=True)
+
+
+def copy_through_cli_io(input_path, output_path, index=1):
+    """Read HDU ``index`` of ``input_path`` and write the file to
+    ``output_path`` through the I/O of ``ipc-taichi decouple``
+    (:func:`ipc_taichi.products.fits.process_fits`), without the correction:
+    the checked memory-mapped open, the output skeleton (every other HDU
+    copied byte for byte), the science array read (as float64, as the
+    correction reads it) and written through a memory map of the temporary
+    output, renamed into place. Run by (a) from its source
+    (:data:`IO_IMPORTS` first), so that its process loads what the command
+    line's I/O loads, not the bench package (0.8 s more here)."""
+    with open_fits(input_path, memmap=True) as hdul:
+        data = read_array(input_path, hdul, index)
+        dtype = np.dtype(data.dtype.newbyteorder("="))
+        headers = {0: hdul[0].header.copy(), index: science_header(hdul[index].header, dtype)}
+        with atomic_output(output_path, True) as tmp:
+            places = write_skeleton(tmp, input_path, hdul, headers, {index: dtype})
+            out = np.memmap(tmp, dtype=dtype.newbyteorder(">"), mode="r+",
+                            offset=places[index][2], shape=data.shape)
+            try:
+                out[...] = np.asarray(data, dtype=np.float64)
+                out.flush()
+            finally:
+                del out
+
+
+def _children_cpu():
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
+
+
+def _timed(argv):
+    """``python ARGV`` in a fresh process: ``(wall seconds, CPU seconds)`` (an
+    error: RuntimeError with its last line)."""
+    cpu = _children_cpu()
+    start = time.perf_counter()
+    proc = subprocess.run([sys.executable, *argv], capture_output=True, text=True,
+                          env=dict(os.environ, ENABLE_TAICHI_HEADER_PRINT="False"))
+    seconds = time.perf_counter() - start
+    if proc.returncode != 0:
+        tail = (proc.stderr.strip().splitlines() or ["no output"])[-1]
+        raise RuntimeError(f"{' '.join(argv[:3])}: exit {proc.returncode}: {tail}")
+    return seconds, _children_cpu() - cpu
+
+
+def _commands(src, out, refpix):
+    """``name -> python argv`` of the three runs, (a), (b), (c)."""
+    cli = ["-m", "ipc_taichi.cli", "decouple", src, out["b"], "--law", CLIRAMP_LAW, "--quiet",
+           "--overwrite"] + ([] if refpix is None else ["--refpix", str(refpix)])
+    scratch = (f"from ipc_taichi.products import decouple_file; decouple_file({src!r}, "
+               f"{out['c']!r}, law={CLIRAMP_LAW!r}, overwrite=True, refpix={refpix!r}, "
+               "warm_start=False)")
+    io = (IO_IMPORTS + inspect.getsource(copy_through_cli_io)
+          + f"copy_through_cli_io({src!r}, {out['a']!r})\n")
+    return {"a": ["-c", io], "b": cli, "c": ["-c", scratch]}
+
+
+def compare_outputs(warm_path, scratch_path):
+    """Per group of the two outputs' SCI cubes: ``(max |warm - scratch|,
+    tol x max|scratch|)`` in electrons, and each file's ``(IPCITER, IPCPREC, IPCCONV)``
+    (the most iterations of a group, the precision, the stopping rule met)."""
+    with fits.open(warm_path, memmap=True) as w, fits.open(scratch_path, memmap=True) as s:
+        diffs, scales = [], []
+        for g in range(w["SCI"].shape[0]):
+            scratch = np.asarray(s["SCI"].section[g], dtype=np.float64)
+            warm = np.asarray(w["SCI"].section[g], dtype=np.float64)
+            diffs.append(float(np.abs(warm - scratch).max()))
+            scales.append(iteration.TOL * float(np.abs(scratch).max()))
+        heads = [tuple(h[0].header.get(k) for k in ("IPCITER", "IPCPREC", "IPCCONV"))
+                 for h in (w, s)]
+    return diffs, scales, heads
+
+
+def _warm_up(work, refpix):
+    """Run (b) and (c) once, untimed, on a small ramp: Taichi's offline cache
+    then holds the kernels, as on any machine after its first run."""
+    small = os.path.join(work, "warmup.fits")
+    write_ramp_fits(small, 64, 3)
+    outs = {k: os.path.join(work, f"warmup-{k}.fits") for k in "abc"}
+    for k in "bc":
+        _timed(_commands(small, outs, BORDER)[k])
+
+
+def _rows(times, cpu, heads, refpix):
+    """The table: one row per run, with its ratio to (a)."""
+    a = statistics.median(times["a"])
+    border = "" if refpix is None else f" --refpix {refpix}"
+    what = {"a": "(a) read + write the file (the CLI's I/O, no correction)",
+            "b": f"(b) ipc-taichi decouple IN OUT --law {CLIRAMP_LAW} --quiet{border} "
+                 "(warm starts)",
+            "c": "(c) from scratch: decouple_file(..., warm_start=False)"}
+    its = {"a": "", "b": heads[0][0], "c": heads[1][0]}  # IPCITER
+    rows = []
+    for k in "abc":
+        median = statistics.median(times[k])
+        rows.append({"run": what[k], "median [s]": median, "min [s]": min(times[k]),
+                     "CPU [s] (median)": statistics.median(cpu[k]),
+                     "x (a)": f"{median / a:.2f}x", "most iterations of a group": its[k]})
+    rows[1]["x (a)"] += (f" (target <= {TARGET_RATIO:g}x: "
+                         f"{'met' if rows[1]['median [s]'] <= TARGET_RATIO * a else 'NOT met'})")
+    return rows
+
+
+def measure_cliramp(size=CLIRAMP_SIZE, groups=CLIRAMP_GROUPS, repeats=3, workdir=None):
+    """Time a Roman-like ramp FITS file read + written, decoupled through the
+    command line (warm starts) and from scratch, each in fresh processes.
+
+    Parameters
+    ----------
+    size, groups : int
+        The ramp: ``groups`` resultants of ``size x size`` float32 pixels
+        (:func:`write_ramp_fits`).
+    repeats : int
+        Runs of each, interleaved (a, b, c, a, b, c, ...); the median is reported.
+    workdir : str, optional
+        Where the files go (about ``4 x groups x size^2 x 4`` bytes); default a
+        temporary directory, removed after.
+
+    Returns
+    -------
+    dict
+        A section for :func:`ipc_taichi.bench.render.render_section`:
+        ``title``, ``rows`` (per run: median and min wall seconds, median CPU
+        seconds (user + system, the process and its children), the ratio to
+        (a), the iterations), ``notes``; and ``times_s`` and ``cpu_s`` (run ->
+        seconds),
+        ``ratio`` (median b / median a), ``met`` (ratio <= :data:`TARGET_RATIO`),
+        ``max_diff`` and ``tolerance`` (per group, electrons),
+        ``within_tolerance``, ``precision``.
+    """
+    load = os.getloadavg()
+    refpix = None if size == 4096 else BORDER  # a Roman full frame has its border by mission
+    with tempfile.TemporaryDirectory(prefix="ipc-cliramp-", dir=workdir) as work:
+        src = os.path.join(work, "ramp.fits")
+        start = time.perf_counter()
+        write_ramp_fits(src, size, groups)
+        made = time.perf_counter() - start
+        _warm_up(work, refpix)
+        outs = {k: os.path.join(work, f"out-{k}.fits") for k in "abc"}
+        commands = _commands(src, outs, refpix)
+        times, cpu = {k: [] for k in "abc"}, {k: [] for k in "abc"}
+        for _ in range(repeats):
+            for k in "abc":
+                wall, used = _timed(commands[k])
+                times[k].append(wall)
+                cpu[k].append(used)
+        diffs, scales, heads = compare_outputs(outs["b"], outs["c"])
+        file_bytes = os.path.getsize(src)
+    within = all(d <= s for d, s in zip(diffs, scales))
+    ratio = statistics.median(times["b"]) / statistics.median(times["a"])
+    worst = int(np.argmax(np.array(diffs) / np.array(scales)))
+    notes = [
+        f"Wall time of each fresh process (Python start and imports included), median of "
+        f"{repeats}, the runs interleaved; the file ({file_bytes / 2**20:.0f} MiB) in the page "
+        f"cache for all three; written in {made:.0f} s (not timed). Load average at start "
+        f"{', '.join(f'{v:.2f}' for v in load)} on {os.cpu_count()} cores; arch "
+        f"{os.environ.get('IPC_TAICHI_ARCH') or 'auto'}, precision {heads[0][1]} (IPCPREC); "
+        f"stopping rule met in every group (IPCCONV): {heads[0][2]} (b), {heads[1][2]} (c).",
+        f"(b) / (a) = {ratio:.2f}x: target <= {TARGET_RATIO:g}x "
+        f"{'met' if ratio <= TARGET_RATIO else 'NOT met'}.",
+        f"Warm starts vs from scratch, largest difference per group "
+        f"{'within' if within else 'NOT within'} tol x max|S| of that group: at most "
+        f"{max(diffs):.4g} e- (group {worst}: {diffs[worst]:.4g} e- vs {scales[worst]:.4g} e-); "
+        f"tol = {iteration.TOL:g}.",
+        "(c) is not a command line: ipc-taichi has no switch for warm starts, so it calls the "
+        "function the command line calls (ipc_taichi.products.decouple_file) with "
+        "warm_start=False.",
+    ]
+    return {"title": f"A Roman-like ramp through the CLI: {size}x{size} x {groups} f32, "
+                     f"law {CLIRAMP_LAW} (issue 28: <= {TARGET_RATIO:g}x read + write)",
+            "rows": _rows(times, cpu, heads, refpix), "notes": notes,
+            "times_s": times, "cpu_s": cpu, "ratio": ratio, "met": ratio <= TARGET_RATIO,
+            "max_diff": diffs, "tolerance": scales, "within_tolerance": within,
+            "precision": heads[0][1]}
