@@ -26,7 +26,9 @@ Modules: :mod:`~ipc_taichi.bench.cpu` (the CPU rows and the floor),
 (NumPy and CuPy peers), :mod:`~ipc_taichi.bench.pipeline` (beside the JWST
 step), :mod:`~ipc_taichi.bench.render` (the report, a pure function of the
 results), :mod:`~ipc_taichi.bench.launch` (subprocesses, the whole run),
-:mod:`~ipc_taichi.bench.startup` (``--help`` and a small decouple in fresh processes).
+:mod:`~ipc_taichi.bench.startup` (``--help`` and a small decouple in fresh processes),
+:mod:`~ipc_taichi.bench.cliramp` (a Roman-like ramp file through the CLI beside its
+read and write).
 """
 
 from .cpu import KINDS, SIZES, measure_floor, measure_row

@@ -194,8 +194,8 @@ class ArrayPlan:
         Charge on the node before the first read, electrons.
     ramp : bool
         Its frames along axis -3 are the groups of a ramp (charge, not a
-        rate, in a stack of frames), decoupled with warm starts
-        (``options.warm_start``).
+        rate, in a stack of frames) to be decoupled with warm starts
+        (``options.warm_start``; off by default).
     """
 
     index: int
