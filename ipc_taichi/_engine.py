@@ -509,10 +509,11 @@ def _load_host(host, bad, io, ws, shift=None):
             good &= ~bad
         any_bad = not good.all()
     base = host
+    bad_px = ~good if any_bad else None
     if any_bad:
         if host is not io:
             np.copyto(io, host)
-        io[~good] = 0.0
+        io[bad_px] = 0.0
         base = io
     start = interior(ws.prev, ws.reach)
     if shift is None:
@@ -520,7 +521,7 @@ def _load_host(host, bad, io, ws, shift=None):
     else:  # a warm start, S_0 = M + shift, in the same pass
         np.add(base, shift, out=start)
         if any_bad:
-            start[~good] = 0.0
+            start[bad_px] = 0.0
     if any_bad or not ws.ok_clean:
         interior(ws.ok, ws.reach)[...] = True if good is None else good
         ws.ok_clean = not any_bad

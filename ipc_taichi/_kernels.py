@@ -300,11 +300,17 @@ class StepPlan:
         return self.law_at + 5
 
     @property
+    def total_at(self):
+        """Where ``a sum_k (w[k, 0] + w[k, 1])`` is, after the per-offset
+        pre-combined coefficients (:attr:`combined`)."""
+        return self.combined_at + 2 * len(self.config.offsets)
+
+    @property
     def n_coef(self):
         """Registers of ``coefficients``: two weights per offset, then the law's
         5 parameters (a constant law's alpha last), then the pre-combined
         coefficients when :attr:`combined`."""
-        return self.combined_at + (2 * len(self.config.offsets) + 1 if self.combined else 0)
+        return self.total_at + 1 if self.combined else self.combined_at
 
     @property
     def rings(self):
@@ -328,26 +334,26 @@ def _sweep_kernel(plan, coefficients, pixel_flow, emit, starts):
 
     @ti.func
     def strip_rows(src: ti.template(), base: ti.template(), dst: ti.template(),
-                   ok: ti.template(), p: ti.template(), coef: ti.template(),
+                   ok: ti.template(), coef: ti.template(),
                    table: ti.template(), sign, part: ti.template(), ring: ti.template(), s,
                    i0, i1, wd):
         """Rows i0 .. i1 - 1 of strip s, left to right; its maxima into part[s]."""
         dmax = ti.cast(0.0, real)
         smax = ti.cast(0.0, real)
         if ti.static(plan.rings):
-            ring_prologue(src, ok, p, table, coef, ring, s, i0, wd)
+            ring_prologue(src, ok, table, coef, ring, s, i0, wd)
         pw = wd + 2 * r
         for i in range(i0, i1):
             y = i + r
             if ti.static(plan.rings):
-                ring_row_ends(src, ok, p, table, coef, ring, s, i, wd)
+                ring_row_ends(src, ok, table, coef, ring, s, i, wd)
             carry = ti.Vector([0.0] * plan.carry_size, dt=real)
             if ti.static(plan.carries_row):
-                row_start(src, ok, p, table, coef, carry, pw, y)
+                row_start(src, ok, table, coef, carry, pw, y)
             for j in range(wd):
                 x = j + r
                 sv = cell(src, y, x, pw)
-                flow = pixel_flow(src, ok, p, coef, table, ring, pw, s, i, y, x, sv, carry)
+                flow = pixel_flow(src, ok, coef, table, ring, pw, s, i, y, x, sv, carry)
                 v = emit(base, dst, sign, pw, i, j, flow)
                 dmax = larger(dmax, ti.abs(v - sv))
                 smax = larger(smax, ti.abs(v))
@@ -370,7 +376,7 @@ def _sweep_kernel(plan, coefficients, pixel_flow, emit, starts):
                 s = task // SPREAD
                 coef = coefficients(p, w)
                 i0 = s * strip
-                strip_rows(src, base, dst, ok, p, coef, table, sign, part, ring, s, i0,
+                strip_rows(src, base, dst, ok, coef, table, sign, part, ring, s, i0,
                            ti.min(h, i0 + strip), wd)
 
     return step_sweep
@@ -411,11 +417,11 @@ def _pixel_kernel(plan, coefficients, pixel_flow, emit, starts):
             dmax = ti.cast(0.0, real)
             smax = ti.cast(0.0, real)
             carry = ti.Vector([0.0] * plan.carry_size, dt=real)
-            column_start(src, ok, p, table, coef, carry, pw, i0, x)
+            column_start(src, ok, table, coef, carry, pw, i0, x)
             for i in range(i0, i1):
                 y = i + r
                 sv = cell(src, y, x, pw)
-                flow = pixel_flow(src, ok, p, coef, table, ring, pw, 0, i, y, x, sv, carry)
+                flow = pixel_flow(src, ok, coef, table, ring, pw, 0, i, y, x, sv, carry)
                 v = emit(base, dst, sign, pw, i, j, flow)
                 dmax = larger(dmax, ti.abs(v - sv))
                 smax = larger(smax, ti.abs(v))

@@ -91,7 +91,7 @@ def law_functions(plan):
     alpha = make_alpha(config.law_kind, config.precision, fast_exp=config.layout == "sweep",
                        flat_table=config.flat)
     cell = access_functions(plan)[0]
-    total_at = plan.combined_at + 2 * len(config.offsets)  # a sum_k (w[k, 0] + w[k, 1])
+    total_at = plan.total_at
 
     @ti.func
     def coefficients(p: ti.template(), w: ti.template()):
@@ -135,10 +135,10 @@ def law_functions(plan):
         return a
 
     @ti.func
-    def pair(src: ti.template(), ok: ti.template(), p: ti.template(), table: ti.template(),
+    def pair(src: ti.template(), ok: ti.template(), table: ti.template(),
              coef: ti.template(), pw, y, x, dy: ti.template(), dx: ti.template()):
-        """alpha of the pair (y, x) -- (y + dy, x + dx); ``p`` is unused (the
-        law's parameters are among ``coef``)."""
+        """alpha of the pair (y, x) -- (y + dy, x + dx) (the law's parameters
+        are among ``coef``)."""
         return pair_of(src, ok, table, coef, pw, cell(src, y, x, pw), y, x, dy, dx)
 
     return coefficients, pair, pair_of
@@ -152,7 +152,7 @@ def flow_functions(plan, pair, pair_of):
     offsets, sources, real = plan.config.offsets, plan.sources, real_type(plan)
     r = plan.config.reach
     cell, put, ring_cell, ring_put = access_functions(plan)
-    total_at = plan.combined_at + 2 * len(offsets)  # a sum_k (w[k, 0] + w[k, 1])
+    total_at = plan.total_at
 
     @ti.func
     def pair_flow(flow, src: ti.template(), coef: ti.template(), pw, y, x, sv,
@@ -188,7 +188,7 @@ def flow_functions(plan, pair, pair_of):
         return old
 
     @ti.func
-    def pixel_flow(src: ti.template(), ok: ti.template(), p: ti.template(),
+    def pixel_flow(src: ti.template(), ok: ti.template(),
                    coef: ti.template(), table: ti.template(), ring: ti.template(), pw, s, i,
                    y, x, sv, carry: ti.template()):
         """The coupling term at padded (y, x) (row ``i`` of the frame); the
@@ -209,7 +209,7 @@ def flow_functions(plan, pair, pair_of):
             elif ti.static(sources[k] == "column"):
                 a_minus = shift_in(carry, plan.vcarry_at[k], dy, a_plus)
             else:
-                a_minus = pair(src, ok, p, table, coef, pw, y - dy, x - dx, dy, dx)
+                a_minus = pair(src, ok, table, coef, pw, y - dy, x - dx, dy, dx)
             flow = pair_flow(flow, src, coef, pw, y, x, sv, k, a_plus, a_minus)
         return flow
 
@@ -233,7 +233,7 @@ def start_functions(plan, pair):
     ring_put = access_functions(plan)[3]
 
     @ti.func
-    def ring_prologue(src: ti.template(), ok: ti.template(), p: ti.template(),
+    def ring_prologue(src: ti.template(), ok: ti.template(),
                       table: ti.template(), coef: ti.template(), ring: ti.template(), s, i0,
                       wd):
         """Sweep: the pairs that start in the dy rows above the strip."""
@@ -242,10 +242,10 @@ def start_functions(plan, pair):
             for row in range(i0 - dy, i0):
                 for c in range(plan.prologue_lo[kv], wd + plan.right_extra[kv]):
                     ring_put(ring, s, kv, row + r, c + r, wd + 2 * r,
-                             pair(src, ok, p, table, coef, wd + 2 * r, row + r, c + r, dy, dx))
+                             pair(src, ok, table, coef, wd + 2 * r, row + r, c + r, dy, dx))
 
     @ti.func
-    def ring_row_ends(src: ti.template(), ok: ti.template(), p: ti.template(),
+    def ring_row_ends(src: ti.template(), ok: ti.template(),
                       table: ti.template(), coef: ti.template(), ring: ti.template(), s, i,
                       wd):
         """Sweep: row i's pairs starting beyond its ends that later rows read back."""
@@ -254,25 +254,25 @@ def start_functions(plan, pair):
         for kv in ti.static(range(len(vertical))):
             dy, dx = ti.static(offsets[vertical[kv]])
             for c in ti.static(plan.left_extra[kv]):
-                ring_put(ring, s, kv, y, c + r, pw, pair(src, ok, p, table, coef, pw, y, c + r,
+                ring_put(ring, s, kv, y, c + r, pw, pair(src, ok, table, coef, pw, y, c + r,
                                                         dy, dx))
             for c in range(wd, wd + plan.right_extra[kv]):
-                ring_put(ring, s, kv, y, c + r, pw, pair(src, ok, p, table, coef, pw, y, c + r,
+                ring_put(ring, s, kv, y, c + r, pw, pair(src, ok, table, coef, pw, y, c + r,
                                                         dy, dx))
 
     @ti.func
-    def row_start(src: ti.template(), ok: ti.template(), p: ti.template(),
+    def row_start(src: ti.template(), ok: ti.template(),
                   table: ti.template(), coef: ti.template(), carry: ti.template(), pw, y):
         """Sweep: the horizontal pairs left of column 0, into the row registers."""
         for k in ti.static(range(len(offsets))):
             dy, dx = ti.static(offsets[k])
             if ti.static(plan.sources[k] == "row"):
                 for m in ti.static(range(dx)):
-                    carry[plan.carry_at[k] + m] = pair(src, ok, p, table, coef, pw, y,
+                    carry[plan.carry_at[k] + m] = pair(src, ok, table, coef, pw, y,
                                                        r - dx + m, 0, dx)
 
     @ti.func
-    def column_start(src: ti.template(), ok: ti.template(), p: ti.template(),
+    def column_start(src: ti.template(), ok: ti.template(),
                      table: ti.template(), coef: ti.template(), carry: ti.template(), pw, i0,
                      x):
         """Pixel: the vertical pairs (dy, 0) that end in the run's first dy rows."""
@@ -280,7 +280,7 @@ def start_functions(plan, pair):
             dy, dx = ti.static(offsets[k])
             if ti.static(plan.sources[k] == "column"):
                 for m in ti.static(range(dy)):
-                    carry[plan.vcarry_at[k] + m] = pair(src, ok, p, table, coef, pw,
+                    carry[plan.vcarry_at[k] + m] = pair(src, ok, table, coef, pw,
                                                         i0 + r - dy + m, x, dy, 0)
 
     return ring_prologue, ring_row_ends, row_start, column_start
