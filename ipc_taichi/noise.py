@@ -307,7 +307,7 @@ def linearise(solution, model=None, *, mask=None, scale=1.0, pedestal=None, edge
 
 def _model(model, edge):
     if model is None or isinstance(model, CouplingModel):
-        m = CouplingModel.resolve(model=model) if model is not None else CouplingModel.resolve()
+        m = CouplingModel.resolve(model=model)
     elif isinstance(model, str) and not model.endswith(".json"):
         m = CouplingModel.resolve(law=model)
     else:

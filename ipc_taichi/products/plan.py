@@ -258,7 +258,7 @@ class ProductPlan:
                           tile, self.complete, noise)
         for a in self.arrays:
             prov.add_hdu(a.index, a.name, a.label, a.region, a.units_text, a.exptime, a.frames,
-                         a.layout.shape,
+                         a.layout.widths,
                          "" if a.arrangement.identity else a.arrangement.note)
         return prov
 
@@ -454,14 +454,21 @@ def _first(facts, options_value, keys, kind=None):
     return None
 
 
+def _pedestal_option(options):
+    """``options.pedestal`` with None read as ``"auto"``, and whether it names
+    a pedestal itself (a number or an image file, not none/auto)."""
+    option = "auto" if options.pedestal is None else options.pedestal
+    return option, option not in ("none", "auto", False, 0, "0")
+
+
 def _pedestal(facts, options, gain, zeroth, layout):
     """The pedestal of one array, electrons (None when none), in the science
     image's shape (a pedestal image is given in the product's frame shape)."""
-    option = "auto" if options.pedestal is None else options.pedestal
+    option, given = _pedestal_option(options)
     shape2d = tuple(facts.shape[-2:])
     if facts.zeroth:
         return None
-    if option not in ("none", "auto", False, 0, "0"):
+    if given:
         frame = np.asarray(read_frame(option, shape2d, "pedestal"), dtype=np.float64)
         if frame.ndim == 2:
             frame = layout.arrangement.to_science(frame)
@@ -577,8 +584,8 @@ def plan_product(arrays, mission, model, options, *, dq_where=None, zeroth=None,
     bits, lacking = dq_bits_of(options.dq_bits, mission)
     say_lacking(lacking, mission, dq_where or f"{first.label.rsplit('[', 1)[0]}[DQ_DEF]")
     plans = tuple(plan_array(a, mission, model, options, zeroth) for a in arrays)
-    option = "auto" if options.pedestal is None else options.pedestal
-    if option not in ("none", "auto", False, 0, "0") and any(not a.zeroth for a in arrays):
+    option, given = _pedestal_option(options)
+    if given and any(not a.zeroth for a in arrays):
         pedestal_text = f"given: {str(option)[:40]} e-"
     elif zeroth is not None and any(p.pedestal is not None for p in plans):
         pedestal_text = zeroth.text

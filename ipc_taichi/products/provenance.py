@@ -87,15 +87,12 @@ class Provenance:
         self.unphysical = {}  # index -> unflagged pixels masked as unphysical
         self.started = _now()
 
-    def add_hdu(self, index, name, label, region, units_text, exptime, frames, shape=None,
-                arrangement=""):
-        """A science array of the run; ``shape`` (its contiguous image's) gives
-        ``IPCNREF``; ``arrangement``: how its frames are read out, when not
-        contiguous (said in HISTORY)."""
-        nref = "0 0 0 0"
-        if shape is not None:
-            (ys, xs), (ny, nx) = region, shape
-            nref = f"{ys.start} {ny - ys.stop} {xs.start} {nx - xs.stop}"
+    def add_hdu(self, index, name, label, region, units_text, exptime, frames,
+                nref=(0, 0, 0, 0), arrangement=""):
+        """A science array of the run; ``nref``: its reference-pixel widths
+        (bottom, top, left, right: ``IPCNREF``); ``arrangement``: how its frames
+        are read out, when not contiguous (said in HISTORY)."""
+        nref = " ".join(str(n) for n in nref)
         self.hdus[index] = dict(name=name, label=label, region=region, units=units_text,
                                 exptime=float(exptime or 0.0), frames=frames, nref=nref,
                                 arrangement=arrangement)
