@@ -123,7 +123,7 @@ class _Flats:
 
     def __init__(self, flat_files, read_noise, not_measured, notes, collection_steps=None):
         self.read_noise = read_noise
-        self.sets, self.frame_files = [], []
+        self.sets = []
         ramp_files = [f for f in flat_files if f.meta.get("layout") == "ramp"]
         self.frame_files = [f for f in flat_files if f.meta.get("layout") != "ramp"]
         for group in _by_illumination(ramp_files):
@@ -313,12 +313,11 @@ def _frames_rise_like_bf(flats, hot):
 def _gain_used(files, gain):
     """The gain the user gave, the one the inputs were converted with and where
     it came from."""
-    given = None if gain is None else gain
     for f in files:
         if f.meta.get("gain") is not None:
-            return {"given": given, "value": float(np.mean(f.meta["gain"])),
+            return {"given": gain, "value": float(np.mean(f.meta["gain"])),
                     "source": f.meta.get("gain_source")}
-    return {"given": given, "value": None,
+    return {"given": gain, "value": None,
             "source": "unused: the inputs are in electrons" if gain is not None else None}
 
 
