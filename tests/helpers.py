@@ -63,3 +63,21 @@ def write_sci(path, sci, bunit="electron", extra=()):
     hdus += [fits.ImageHDU(data, name=name) for name, data in extra]
     fits.HDUList(hdus).writeto(path)
     return str(path)
+
+
+def loop_couple(s, alpha, weights):
+    """Coupling by a plain loop over pixels and offsets (zero charge beyond the
+    frame): ``weights`` ``{(dy, dx): w}``, ``alpha(S, N)`` a fraction. The
+    reference the independent generators' vectorised coupling is checked against."""
+    ny, nx = s.shape
+    out = s.copy()
+    for y in range(ny):
+        for x in range(nx):
+            for (dy, dx), w in weights.items():
+                qy, qx = y + dy, x + dx
+                inside = 0 <= qy < ny and 0 <= qx < nx
+                flow = w * alpha(s[y, x], s[qy, qx] if inside else 0.0) * s[y, x]
+                out[y, x] -= flow
+                if inside:
+                    out[qy, qx] += flow
+    return out

@@ -9,7 +9,7 @@ from astropy.io import fits
 from ipc_taichi.calibrate import calibrate, flats, hotpixels, lawfit, reffiles
 from ipc_taichi.errors import IPCInputError
 from ipc_taichi.model import CouplingModel
-from tests.helpers import optional, write_sci
+from tests.helpers import loop_couple, optional, write_sci
 from tests.independent import ipcgen
 
 # ---- hot pixels ----------------------------------------------------------------------
@@ -295,16 +295,7 @@ def test_independent_generator_couples_like_a_pixel_loop():
     """The blind generator's vectorised coupling against a plain loop over pixels and offsets."""
     rng = np.random.default_rng(0)
     s = rng.uniform(0, 6e4, (9, 11))
-    out = s.copy()
-    for y in range(9):
-        for x in range(11):
-            for (dy, dx), w in ipcgen.WEIGHTS.items():
-                qy, qx = y + dy, x + dx
-                inside = 0 <= qy < 9 and 0 <= qx < 11
-                flow = w * ipcgen.LAWS["rising"](s[y, x], s[qy, qx] if inside else 0.0) * s[y, x]
-                out[y, x] -= flow
-                if inside:
-                    out[qy, qx] += flow
+    out = loop_couple(s, ipcgen.LAWS["rising"], ipcgen.WEIGHTS)
     assert np.abs(ipcgen.couple(s, "rising") - out).max() < 1e-9
 
 

@@ -25,6 +25,7 @@ import numpy as np
 import pytest
 
 from ipc_taichi.calibrate import calibrate
+from tests.helpers import loop_couple
 from tests.independent import ipcgen, rampgen
 
 AXES = {"x": (0, 1), "y": (1, 0)}
@@ -121,17 +122,7 @@ def test_generator_couples_like_a_pixel_loop(law):
     plain loop over pixels and offsets, zero charge beyond the frame."""
     rng = np.random.default_rng(3)
     s = rng.uniform(0.0, 6e4, (12, 12))
-    alpha = rampgen.hidden_alpha(law)
-    out = s.copy()
-    for y in range(12):
-        for x in range(12):
-            for (dy, dx), w in rampgen.WEIGHTS.items():
-                qy, qx = y + dy, x + dx
-                inside = 0 <= qy < 12 and 0 <= qx < 12
-                flow = w * alpha(s[y, x], s[qy, qx] if inside else 0.0) * s[y, x]
-                out[y, x] -= flow
-                if inside:
-                    out[qy, qx] += flow
+    out = loop_couple(s, rampgen.hidden_alpha(law), rampgen.WEIGHTS)
     got = ipcgen.couple(s, f"ramp_{law}", rampgen.WEIGHTS)
     assert np.abs(got - out).max() < 1e-9
     assert got.sum() == pytest.approx(out.sum(), rel=1e-12)
