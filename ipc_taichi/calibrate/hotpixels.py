@@ -50,7 +50,8 @@ from scipy import ndimage
 from ..errors import IPCInputError
 
 __all__ = ["DIRECTIONS", "find_hot_pixels", "measure_events", "summarise_events",
-           "select_events", "fold_of", "nn_fraction", "read_noise_from_darks"]
+           "select_events", "fold_of", "nn_fraction", "per_pixel_mean",
+           "read_noise_from_darks"]
 
 DIRECTIONS = {
     "x": ((0, 1), (0, -1)),
@@ -278,8 +279,8 @@ def summarise_events(events, bins=None, min_signal=200.0, per_decade=6, min_coun
         for name, offsets in DIRECTIONS.items():
             cols = [_BOX.index(o) for o in offsets]
             half = len(cols) // 2
-            value, err, kept = _clipped(_per_pixel(frac[sel][:, cols].mean(axis=1), cluster))
-            halves = [_clipped(_per_pixel(frac[sel][:, c].mean(axis=1), cluster))[0]
+            value, err, kept = _clipped(per_pixel_mean(frac[sel][:, cols].mean(axis=1), cluster))
+            halves = [_clipped(per_pixel_mean(frac[sel][:, c].mean(axis=1), cluster))[0]
                       for c in (cols[:half], cols[half:])]
             row[name] = {"value": value, "error": err, "n": kept, "halves": halves}
         rows.append(row)
@@ -302,7 +303,7 @@ def _pooled_floor(rows):
     return rows
 
 
-def _per_pixel(values, cluster):
+def per_pixel_mean(values, cluster):
     """The mean of ``values`` per cluster (hot pixel)."""
     total = np.bincount(cluster, weights=values)
     return total / np.bincount(cluster)

@@ -50,15 +50,13 @@ def _mosaic(groups, positions):
     return stack, centres
 
 
-def _residual(integrations, model, min_signal):
+def _residual(mosaics, model, min_signal):
     """Mean neighbour fraction after decoupling with ``model`` (None: as
-    measured) at the hot pixels of ``integrations`` (list of ``(groups,
-    positions)``): ``{"residual", "error", "n_pixels"}``."""
+    measured) at the hot pixels of ``mosaics`` (per integration with hot
+    pixels: ``(stack, centres, groups, positions)``, the stamps cut by
+    :func:`_mosaic` once for every model): ``{"residual", "error", "n_pixels"}``."""
     values, pixels, boxes = [], [], []
-    for groups, positions in integrations:
-        if not len(positions):
-            continue
-        stack, centres = _mosaic(groups, positions)
+    for stack, centres, groups, positions in mosaics:
         if model is not None:
             stack = np.asarray(decouple(stack, model=model))
         ev = hotpixels.measure_events(stack, centres)
@@ -72,7 +70,7 @@ def _residual(integrations, model, min_signal):
         return {"residual": None, "error": None, "n_pixels": 0, "stamp": None}
     v, ids = np.concatenate(values), np.concatenate(pixels)
     _, cluster = np.unique(ids, return_inverse=True)
-    per_pixel = np.bincount(cluster, weights=v) / np.bincount(cluster)
+    per_pixel = hotpixels.per_pixel_mean(v, cluster)
     n = per_pixel.size
     err = float(per_pixel.std(ddof=1) / math.sqrt(n)) if n > 1 else float("nan")
     stamp = np.concatenate(boxes).mean(axis=0).reshape(5, 5)
@@ -120,7 +118,9 @@ def held_out_residuals(integrations, events, bins, flat_rows, chosen, min_signal
         mine = []
         for groups, positions in integrations:
             ids = positions[:, 0] * groups.shape[-1] + positions[:, 1]
-            mine.append((groups, positions[np.isin(ids, list(held))]))
+            kept = positions[np.isin(ids, list(held))]
+            if len(kept):
+                mine.append((*_mosaic(groups, kept), groups, kept))
         for key, name in (("chosen", chosen), ("constant", "constant")):
             geometry, law = lawfit.model_of(fitted, name)
             scored[key].append(_residual(mine, CouplingModel.resolve(law, geometry, "zero"),
