@@ -33,12 +33,10 @@ import threading
 
 import numpy as np
 
-from . import _kernels, runtime
+from . import runtime
 from ._device import (
-    HostCopies,
     check_torch_device,
     kind_of,
-    pinned_empty,
     pinned_for_call,
     shares_memory,
     to_torch,
@@ -47,24 +45,12 @@ from ._device import (
 )
 from ._frames import finite_sum
 from ._inputs import Frames, as_result, as_stack
-from ._kernels import (
-    KernelConfig,
-    get_frame_kernels,
-    get_step_kernel,
-    kernel_law_kind,
-    partials_count,
-)
+from ._kernels import KernelConfig, get_frame_kernels, get_step_kernel, kernel_law_kind
+from ._lanes import lane_count
 from ._warm import WarmStart
+from ._workspace import STRIP_ROWS, Workspace, interior
 from .errors import IPCInputError
 
-# rows per task of the CPU sweep: a strip re-evaluates the dy-row pairs above
-# it (1/STRIP_ROWS extra work for nearest neighbours) and 2 cores need a few
-# dozen tasks to balance when other processes share them
-STRIP_ROWS = 32
-# threads the ``pixel`` layout aims for: an H100 keeps 132 x 2048 = 270 k
-# threads resident, twice that hides the tail of the last wave
-PIXEL_THREADS = 1 << 19
-MIN_RUN_ROWS = 8
 WORKSPACES_KEPT = 2  # frame shapes whose buffers stay allocated
 # the engine path with Taichi ndarrays and explicit copies, as on CUDA; tests
 # set it to run that path on the CPU
@@ -79,145 +65,13 @@ def start(arch, precision):
     return runtime.init(arch, precision)
 
 
-def default_layout(arch):
-    """The kernel layout that suits ``arch`` (see :mod:`ipc_taichi._kernels`)."""
-    return "pixel" if arch == "cuda" else "sweep"
-
-
-def interior(padded, reach):
-    """The frame inside a padded array (a view)."""
-    if reach == 0:
-        return padded
-    return padded[reach:-reach, reach:-reach]
-
-
-# --------------------------------------------------------------------------- workspace
-
-class Workspace:
-    """The working arrays for frames of one shape, allocated once and reused.
-
-    ``prev`` and ``nxt`` (padded by ``reach``, zero border never written), the
-    padded ``ok`` byte array (border 1 for the ``zero`` edge, 0 for
-    ``isolated``; interior written by ``load``), the per-thread ``partials``
-    of the stopping-rule maxima, the sweep's ring rows, and on the device path
-    the unpadded ``io`` frame and ``mask`` bytes. On the CPU they are NumPy
-    arrays (Taichi reads them in place); on CUDA Taichi ndarrays in device
-    memory.
-    """
-
-    def __init__(self, info, shape, config, device_buffers):
-        ny, nx = shape
-        r = config.reach
-        self.shape = shape
-        self.reach = r
-        self.layout = config.layout
-        self.device_buffers = device_buffers
-        self.dtype = np.dtype(info.dtype)
-        padded = (ny + 2 * r, nx + 2 * r)
-        if config.layout == "sweep":
-            self.strip = STRIP_ROWS
-        else:
-            self.strip = max(MIN_RUN_ROWS, -(-ny * nx // PIXEL_THREADS))
-            # fewer partials than the tree reduces to one row, unless the frame is
-            # wider than that (then maxima() reads the rows the tree leaves)
-            self.strip = max(self.strip,
-                             -(-ny * nx // _kernels.FAN_IN ** _kernels.TREE_LEVELS))
-        self.strip = min(self.strip, ny)
-        self.n_partials = partials_count(config.layout, ny, nx, self.strip)
-        self._made = []
-        self.prev = self._zeros(padded, self.dtype)
-        self.nxt = self._zeros(padded, self.dtype)
-        ok = np.full(padded, 1 if config.edge == "zero" else 0, dtype=np.uint8)
-        interior(ok, r)[...] = 1  # see ok_clean
-        self.ok = ok if not device_buffers else self._zeros(padded, np.uint8)
-        if device_buffers:
-            self.ok.from_numpy(ok)
-        else:
-            self._made.append(ok.nbytes)
-        self.partials = self._zeros((self.n_partials, 2), self.dtype)
-        if config.layout == "sweep":
-            ring = (-(-ny // STRIP_ROWS), max(1, len(config.vertical)), config.ring_depth,
-                    padded[1])
-        else:
-            ring = (1, 1, 1, 1)
-        self.ring = self._zeros(ring, self.dtype)
-        self.flag = self._zeros((1,), self.dtype)
-        self.no_mask = self._zeros((1, 1), np.uint8)
-        self._io = None
-        self._mask = None
-        self.ok_clean = True  # the interior of ``ok`` is all 1
-        self._staging = None
-        self.copies = HostCopies(info.arch) if device_buffers else None
-
-    def _zeros(self, shape, dtype, fill=0):
-        if not self.device_buffers:
-            arr = np.full(shape, fill, dtype=dtype)
-        else:
-            import taichi as ti
-
-            kind = {np.dtype(np.float64): ti.f64, np.dtype(np.float32): ti.f32,
-                    np.dtype(np.uint8): ti.u8}[np.dtype(dtype)]
-            arr = ti.ndarray(dtype=kind, shape=shape)
-            arr.fill(fill)
-        self._made.append(int(np.prod(shape)) * np.dtype(dtype).itemsize)
-        return arr
-
-    @property
-    def nbytes(self):
-        """Bytes of every buffer this workspace has allocated."""
-        return sum(self._made)
-
-    @property
-    def io(self):
-        """The unpadded frame on the device (device path, NumPy input)."""
-        if self._io is None:
-            self._io = self._zeros(self.shape, self.dtype)
-        return self._io
-
-    def mask_buffer(self):
-        if self._mask is None:
-            self._mask = self._zeros(self.shape, np.uint8)
-        return self._mask
-
-    def staging(self, arch):
-        """A host frame in the runtime dtype, page-locked on CUDA, for inputs
-        that must be converted before the upload (other dtype, strided)."""
-        if self._staging is None:
-            self._staging = pinned_empty(self.shape, self.dtype, arch=arch)
-        return self._staging
-
-    def read(self, array, n):
-        """The first ``n`` values of a small buffer (maxima, flag) as floats."""
-        if not self.device_buffers:
-            return [float(v) for v in array.reshape(-1)[:n]]
-        host = np.empty(n, dtype=self.dtype)
-        self.copies.download(host, array)  # copies host.nbytes from the start
-        return [float(v) for v in host]
-
-    def clear_flag(self):
-        if self.device_buffers:
-            self.copies.upload(self.flag, np.zeros(1, dtype=self.dtype))
-        else:
-            self.flag[0] = 0
-
-    def maxima(self):
-        """``(max|dst - src|, max|dst|)`` of the last step: the maximum over the
-        rows the tree leaves (``pixel``: row 0 unless the frame is wider than
-        the tree's capacity) or over the strips' rows (``sweep``)."""
-        n = self.n_partials if self.layout == "sweep" else _kernels.tree_rows(self.n_partials)
-        if self.device_buffers:
-            rows = np.empty((n, 2), dtype=self.dtype)
-            self.copies.download(rows, self.partials)
-        else:
-            rows = self.partials[:n]
-        d, s = rows.max(axis=0)
-        return float(d), float(s)
-
-    def estimate(self, src):
-        """The current estimate as a NumPy frame (a view on the CPU path, a
-        copy from the device otherwise)."""
-        padded = src.to_numpy() if self.device_buffers else src
-        return interior(padded, self.reach)
+def default_layout(arch, device_buffers=False):
+    """The kernel layout that suits ``arch`` (see :mod:`ipc_taichi._kernels`):
+    ``lanes`` on the CPU (host arrays), ``sweep`` for host arrays handled as
+    device buffers (the test path), ``pixel`` on CUDA."""
+    if arch == "cuda":
+        return "pixel"
+    return "sweep" if device_buffers else "lanes"
 
 
 # Taichi has one runtime per process, with one buffer of kernel temporaries
@@ -323,13 +177,13 @@ class _Run:
     def __init__(self, frames, model, info, layout, what):
         self.frames = frames
         self.info = info
-        layout = layout or default_layout(info.arch)
         offsets = tuple(u for u, _ in model.geometry.half_stencil())
         if frames.on_device:
             check_torch_device(frames.data, info.arch, what)
         # working arrays live where the kernels run (Taichi ndarrays on CUDA);
         # a tensor's frame is handed to Taichi as it is, a NumPy frame copied
         device_buffers = info.arch == "cuda" or FORCE_DEVICE_BUFFERS
+        layout = layout or default_layout(info.arch, device_buffers)
         self.device_buffers = device_buffers
         # host arrays go to the kernels flat (see KernelConfig.flat)
         self.configs = {m: KernelConfig(offsets=offsets, law_kind=kernel_law_kind(model.law),
@@ -443,7 +297,12 @@ class _Run:
         config = self.configs[masked]
         kernel = get_step_kernel(config)
         ok, table, ring = ws.ok, self.table, ws.ring
-        if config.flat:
+        if config.layout == "lanes":  # vectors of L pixels; the measured frame padded
+            lanes = lane_count(config.precision)
+            src, base, dst, ok, ring = (_flat(a).reshape(-1, lanes)
+                                        for a in (src, ws.measured, dst, ok, ring))
+            table = _flat(table)
+        elif config.flat:
             src, base, dst, ok, table, ring = (_flat(a) for a in (src, base, dst, ok, table,
                                                                   ring))
         kernel(src, base, dst, ok, self.p, self.w, table, float(sign), ws.partials, ring,
@@ -460,7 +319,7 @@ class _Run:
                 ws.copies.download(out[k], io)
         else:
             # on the CPU a copy by NumPy costs less than a kernel launch
-            np.copyto(io, interior(src, ws.reach))
+            np.copyto(io, interior(src, ws.reach, ws.shape))
         if any_bad:
             self.restore(k, out)
 
@@ -515,7 +374,9 @@ def _load_host(host, bad, io, ws, shift=None):
             np.copyto(io, host)
         io[bad_px] = 0.0
         base = io
-    start = interior(ws.prev, ws.reach)
+    if ws.measured is not None:  # lanes: the step reads the measured frame padded
+        interior(ws.measured, ws.reach, ws.shape)[...] = base
+    start = interior(ws.prev, ws.reach, ws.shape)
     if shift is None:
         start[...] = base
     else:  # a warm start, S_0 = M + shift, in the same pass
@@ -523,7 +384,7 @@ def _load_host(host, bad, io, ws, shift=None):
         if any_bad:
             start[bad_px] = 0.0
     if any_bad or not ws.ok_clean:
-        interior(ws.ok, ws.reach)[...] = True if good is None else good
+        interior(ws.ok, ws.reach, ws.shape)[...] = True if good is None else good
         ws.ok_clean = not any_bad
     return base, any_bad
 

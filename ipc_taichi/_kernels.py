@@ -94,6 +94,7 @@ from dataclasses import dataclass
 from . import runtime
 from ._alpha import kernel_law_kind, make_alpha, make_exp
 from ._frames import MAX_FINITE, FrameKernels, get_frame_kernels
+from ._lanes import lanes_kernel
 from ._stepparts import (
     access_functions,
     arg_types,
@@ -106,12 +107,13 @@ from ._stepparts import (
 )
 
 __all__ = ["KernelConfig", "StepPlan", "alpha_sources", "get_step_kernel", "get_frame_kernels",
-           "get_reduce_kernel", "LAYOUTS", "partials_count", "tree_rows", "FAN_IN",
+           "get_reduce_kernel", "LAYOUTS", "STRIP_LAYOUTS", "partials_count", "tree_rows", "FAN_IN",
            "TREE_LEVELS", "MAX_FINITE", "FrameKernels",
            # the device law, from ._alpha
            "kernel_law_kind", "make_alpha", "make_exp"]
 
-LAYOUTS = ("sweep", "pixel")
+LAYOUTS = ("sweep", "pixel", "lanes")
+STRIP_LAYOUTS = ("sweep", "lanes")  # one task per strip of rows, one partials row per strip
 SPREAD = 512  # ``sweep`` layout: loop iterations per strip (see step_sweep)
 FAN_IN = 32  # entries one thread reduces per tree level
 TREE_LEVELS = 5  # tree passes: up to FAN_IN ** TREE_LEVELS (33.5 M) partials
@@ -161,7 +163,7 @@ def partials_count(layout, height, width, strip):
     """Rows of the ``partials`` array a step on a ``height x width`` frame
     (unpadded) writes: one per strip (sweep) or per column run (pixel)."""
     strips = -(-height // strip)
-    return strips if layout == "sweep" else strips * width
+    return strips if layout in STRIP_LAYOUTS else strips * width
 
 
 def make_tree_reduction():
@@ -238,7 +240,7 @@ def alpha_sources(config):
     """
     if config.law_kind == "constant":
         return ("fresh",) * len(config.offsets)
-    if config.layout == "sweep":
+    if config.layout in STRIP_LAYOUTS:
         return tuple("row" if dy == 0 else "ring" for dy, _ in config.offsets)
     return tuple("column" if dx == 0 else "fresh" for _, dx in config.offsets)
 
@@ -446,6 +448,8 @@ def get_step_kernel(config):
     plan = StepPlan.of(config)
     coefficients, pair, pair_of = law_functions(plan)
     pixel_flow, emit = flow_functions(plan, pair, pair_of)
+    if config.layout == "lanes":
+        return lanes_kernel(plan, coefficients, SPREAD)
     starts = start_functions(plan, pair)
     build = _sweep_kernel if config.layout == "sweep" else _pixel_kernel
     return build(plan, coefficients, pixel_flow, emit, starts)

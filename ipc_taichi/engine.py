@@ -33,7 +33,7 @@ Settings for a while
 
 import contextlib
 
-from . import _engine, _kernels
+from . import _engine, _kernels, _workspace
 from ._alpha import kernel_law_kind, make_alpha, make_exp
 from ._device import (
     CUDA_ERROR_HOST_MEMORY_ALREADY_REGISTERED,
@@ -117,7 +117,7 @@ def pixel_runs(threads=None, min_rows=None):
     is). Cached workspaces are freed on entry and exit, as their run height
     was cut for the old values."""
     values = {"PIXEL_THREADS": threads, "MIN_RUN_ROWS": min_rows}
-    with _set(_engine, **{k: v for k, v in values.items() if v is not None}):
+    with _set(_workspace, **{k: v for k, v in values.items() if v is not None}):
         clear_workspaces()
         try:
             yield

@@ -45,6 +45,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import ArchUnavailableError
+from .gpus import cuda_present
 
 __all__ = ["RuntimeInfo", "init", "current", "cpu_threads", "ARCH_ENV", "PRECISION_ENV",
            "THREADS_ENV", "CACHE_ENV"]
@@ -175,6 +176,10 @@ def init(arch=None, precision=None):
     # fast_math off: it may reorder the stopping rule's max-reductions and drop
     # IEEE guarantees we rely on for f64 agreement with the NumPy reference.
     common = dict(default_fp=fp, fast_math=False, log_level=ti.ERROR)
+    if requested == "cpu" or (requested == "auto" and not cuda_present()):
+        # Taichi vectors as LLVM vectors: the CPU's ``lanes`` step is SIMD
+        # code only so (see ipc_taichi._lanes); on CUDA Taichi's default
+        common["real_matrix_scalarize"] = False
     threads = cpu_threads()
     if threads is not None:
         common["cpu_max_num_threads"] = threads

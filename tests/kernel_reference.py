@@ -71,7 +71,7 @@ def record():
     out = {}
     for precision in ("f64", "f32"):
         ipc_taichi.init("cpu", precision)
-        for layout in ("sweep", "pixel"):
+        for layout in ("sweep", "pixel", "lanes"):
             for name, kw in cases():
                 for masked in (False, True):
                     m = mask if masked else None

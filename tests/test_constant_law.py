@@ -20,7 +20,7 @@ def test_which_laws_are_constant():
     assert kernel_law_kind(ParametricLaw(1e-9, 3.0, 0.0, 7.0, 0.01)) == "parametric"
 
 
-@pytest.mark.parametrize("layout", ["sweep", "pixel"])
+@pytest.mark.parametrize("layout", ["lanes", "sweep", "pixel"])
 @pytest.mark.parametrize("geometry,edge", [(None, "zero"), (ANISO, "isolated")])
 def test_constant_kernel_matches_general_kernel(cpu, rng, layout, geometry, edge):
     """The same law through the general kernel (a parametric law whose

@@ -20,7 +20,6 @@ import ipc_taichi
 from ipc_taichi import IPCInputError, engine
 from ipc_taichi.engine import (
     FAN_IN,
-    KernelConfig,
     get_frame_kernels,
     get_reduce_kernel,
     get_step_kernel,
@@ -124,11 +123,13 @@ def test_callback_sees_the_same_estimates_on_device_path(cpu, rng, device_path):
 
 def test_buffers_reused_and_nothing_compiled_twice(cpu, rng, device_path):
     measured = np.stack([couple_reference(f) for f in rng.uniform(0, 60000, (4, 33, 29))])
-    ipc_taichi.decouple(measured[0])
+    with engine.step_kernels_built() as built:
+        ipc_taichi.decouple(measured[0])
     before = dict(engine.workspace_cache_info())
     workspaces = engine.cached_workspaces()
-    step = get_step_kernel(KernelConfig(((0, 1), (1, 0)), "parametric", "zero", False, "f64",
-                                        "sweep"))
+    config, = set(built)  # the layout this path runs, flat or not
+    assert config.offsets == ((0, 1), (1, 0)) and config.law_kind == "parametric"
+    step = get_step_kernel(config)
     frame_kernels = get_frame_kernels("f64")
     kernels = [step, frame_kernels.load, frame_kernels.store]
     compiled = [len(k._primal.compiled_kernels) for k in kernels]

@@ -1,7 +1,8 @@
 """The Taichi kernels' outputs, byte for byte, against those recorded before
 the kernels were restructured (``tests/kernel_reference.py`` made
 ``tests/data/kernel_reference.json``): couple and decouple, f64 and f32, both
-layouts (``pixel`` runs on the CPU arch here), a NaN pixel and a mask,
+layouts (``pixel`` runs on the CPU arch here; ``lanes``, added later, is checked against
+the ``sweep`` bytes recorded before it existed), a NaN pixel and a mask,
 anisotropic + diagonal + second-neighbour geometry, the isolated edge, a
 2-frame stack, a constant law and a tabulated law."""
 
@@ -38,7 +39,7 @@ def test_outputs_bit_identical_to_recorded():
     assert changed == [], f"{len(changed)} of {len(now)} outputs changed: {changed[:6]}"
 
 
-@pytest.mark.parametrize("layout", ["sweep", "pixel"])
+@pytest.mark.parametrize("layout", ["lanes", "sweep", "pixel"])
 def test_table_law_decouple_agrees_with_reference(cpu, layout):
     """The table law's decouple (both layouts, f64) against the NumPy reference decoupler
     on the recorded frames: the cases left out of the byte check above."""

@@ -84,7 +84,7 @@ def test_cuda_layout_runs_on_cpu_and_agrees(cpu, star_frame, edge):
     g = ipc_taichi.Geometry.terms(horizontal=1.0, vertical=0.8, diagonal=0.1, second=0.02)
     truth = star_frame[:70, :90]
     ref = couple_reference(truth, geometry=g, edge=edge)
-    for layout in ("pixel", "sweep"):
+    for layout in ("pixel", "sweep", "lanes"):
         got = ipc_taichi.couple(truth, geometry=g, edge=edge, layout=layout)
         assert np.nanmax(np.abs(got - ref)) <= 1e-10 * np.nanmax(ref)
         signal = ipc_taichi.decouple(ref, geometry=g, edge=edge, max_iter=5, tol=0,

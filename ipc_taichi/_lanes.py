@@ -1,0 +1,407 @@
+"""The CPU step, ``L`` pixels at a time (the ``lanes`` layout of
+:mod:`ipc_taichi._kernels`).
+
+Taichi 1.7's CPU backend emits scalar code for the other layouts: its LLVM
+vectorisers never fire, because every array's data pointer is reloaded after
+each store (the pointer lives in memory a float store might alias, to LLVM).
+A Taichi vector, compiled with ``real_matrix_scalarize=False`` (set by
+:func:`ipc_taichi.runtime.init` on the CPU), is one LLVM vector value: an
+array whose elements are vectors of ``L`` pixels is read and written by one
+vector load and store, and arithmetic on it is SIMD (AVX-512: ``L`` = 16 in
+f32, 8 in f64, :data:`LANES`). Measured on a 2-core Xeon (AVX-512), one
+thread, 2048x2048 f32, per Jacobi iteration: constant law 8.4 -> 2.9 ms,
+``donlon2018`` 52 -> 12 ms.
+
+The arrays
+----------
+Every frame array of the step (``src``, ``base``, ``dst``, ``ok``, the ring)
+is padded by ``reach`` pixels as for the ``sweep`` layout, and its padded
+rows are ``padded_width`` pixels wide: the frame's width plus both borders
+rounded up to a multiple of ``L``, so that every row starts a vector and the
+columns right of the border are more border (zero signal, never written
+other than with zero). ``base`` is padded too (the engine copies the measured
+frame into its own padded array), ``ok`` holds reals (1.0 = may couple). The
+arrays must be 64-byte aligned: LLVM assumes a vector's natural alignment
+(the engine allocates them so, :func:`aligned_zeros`).
+
+The loop
+--------
+As in the ``sweep``: one task per strip of rows, rows left to right, one
+vector (``L`` pixels) per step. A neighbour at ``(dy, dx)`` is the vector at
+the same place ``dy`` rows away, shifted by ``dx`` lanes with lanes from the
+vector beside it. Each pair's alpha is evaluated once: a pair along the row
+``(0, dx)`` is carried to the next vector in ``dx`` registers, a pair
+``dy > 0`` rows down goes into a ring of rows and is read back ``dy`` rows
+later (shifted by ``dx`` lanes). Lanes in the border columns are computed
+with the rest and written as zero, which keeps the border what it was; a
+read beyond either end of the array is clamped to its end (it feeds border
+lanes only). The law's exponentials use :func:`make_vector_exp` (the same
+polynomial as :func:`ipc_taichi._alpha.make_exp`, ``2**n`` as a product of
+powers of two chosen by compares: vectors have no bit casts here); the table
+law reads its four corners lane by lane.
+
+Things this compilation mode does not take on a vector (they crash at compile
+time): unary minus, ``ti.abs``, ``ti.exp``, casts and bit casts; the code
+below uses ``0 - x``, compares and selects instead.
+"""
+
+__all__ = ["LANES", "ALIGN", "lane_count", "padded_width", "aligned_zeros", "make_vector_exp",
+           "make_vector_alpha", "lanes_kernel"]
+
+import numpy as np
+
+LANES = {"f64": 8, "f32": 16}
+"""Pixels per vector: 64 bytes (one AVX-512 register, two AVX2 ones)."""
+
+ALIGN = 64
+"""Bytes every ``lanes`` array starts on (a vector's natural alignment)."""
+
+
+def lane_count(precision):
+    return LANES[precision]
+
+
+def padded_width(width, reach, precision):
+    """Columns of a padded row: ``width + 2 * reach`` rounded up to whole vectors."""
+    lanes = LANES[precision]
+    return -(-(width + 2 * reach) // lanes) * lanes
+
+
+def aligned_zeros(shape, dtype, fill=0):
+    """A C-contiguous NumPy array starting on an :data:`ALIGN`-byte boundary."""
+    dtype = np.dtype(dtype)
+    count = int(np.prod(shape))
+    raw = np.empty(count * dtype.itemsize + ALIGN, dtype=np.uint8)
+    start = -raw.ctypes.data % ALIGN
+    arr = raw[start:start + count * dtype.itemsize].view(dtype).reshape(shape)
+    arr[...] = fill
+    return arr
+
+
+def make_vector_exp(real_is_f64):
+    """``exp(x)`` of a vector ``x <= 0``: the range reduction and polynomial of
+    :func:`ipc_taichi._alpha.make_exp` (same operations, same rounding), with
+    ``2**n`` (``n`` an integer in ``[-1022, 0]`` (f64) or ``[-126, 0]`` (f32)
+    after the clamp) built as a product of the powers ``2**-b`` (b = 512, ...,
+    1) that the bits of ``-n`` select: each product is exact."""
+    import taichi as ti
+
+    bits = [float(2 ** e) for e in range(9 if real_is_f64 else 6, -1, -1)]
+
+    @ti.func
+    def power_of_two(n):
+        m = 0.0 - n
+        scale = n * 0.0 + 1.0
+        for b in ti.static(bits):
+            take = m >= b
+            scale = scale * ti.select(take, 2.0 ** -b, 1.0)
+            m = m - ti.select(take, b, 0.0)
+        return scale
+
+    if real_is_f64:
+        @ti.func
+        def exp(x):
+            magic = 6755399441055744.0  # 1.5 * 2**52
+            x = ti.select(x > -708.0, x, -708.0)
+            t = x * 1.4426950408889634 + magic
+            n = t - magic
+            r = x - n * 0.6931471803691238 - n * 1.9082149292705877e-10
+            r2 = r * r
+            r4 = r2 * r2
+            r8 = r4 * r4
+            d0 = (1.0 + r) + r2 * (0.5 + r * (1.0 / 6.0))
+            d1 = (1.0 / 24.0 + r * (1.0 / 120.0)) + r2 * (1.0 / 720.0 + r * (1.0 / 5040.0))
+            d2 = ((1.0 / 40320.0 + r * (1.0 / 362880.0))
+                  + r2 * (1.0 / 3628800.0 + r * (1.0 / 39916800.0)))
+            p = (d0 + r4 * d1) + r8 * (d2 + r4 * (1.0 / 479001600.0))
+            return p * power_of_two(n)
+    else:
+        @ti.func
+        def exp(x):
+            magic = ti.f32(12582912.0)  # 1.5 * 2**23
+            x = ti.select(x > ti.f32(-87.0), x, ti.f32(-87.0))
+            t = x * ti.f32(1.442695) + magic
+            n = t - magic
+            r = x - n * ti.f32(0.693145751953125) - n * ti.f32(1.428606765330187e-06)
+            r2 = r * r
+            r4 = r2 * r2
+            d0 = (ti.f32(1.0) + r) + r2 * (ti.f32(0.5) + r * ti.f32(1.0 / 6.0))
+            d1 = ((ti.f32(1.0 / 24.0) + r * ti.f32(1.0 / 120.0))
+                  + r2 * (ti.f32(1.0 / 720.0) + r * ti.f32(1.0 / 5040.0)))
+            p = d0 + r4 * d1
+            return p * power_of_two(n)
+    return exp
+
+
+def make_vector_alpha(law_kind, precision):
+    """``alpha(s, n, law, table)`` of two vectors of signals: the law of
+    :func:`ipc_taichi._alpha.make_alpha`, lane by lane (``law``: the 5 kernel
+    parameters, ``table``: the table law's grid, flat, row-major)."""
+    import taichi as ti
+
+    lanes = LANES[precision]
+    real = ti.f64 if precision == "f64" else ti.f32
+    exp = make_vector_exp(precision == "f64")
+
+    @ti.func
+    def clamp(u, last):
+        c = ti.select(u > 0.0, u, 0.0)
+        return ti.select(c < last, c, last)
+
+    @ti.func
+    def bilinear(u, v, last, table: ti.template()):
+        """The table at fractional grid positions ``u``, ``v`` (clamped):
+        cell corners read lane by lane (no vector gather or cast here)."""
+        top = ti.cast(last, ti.i32) - 1
+        n = top + 2
+        i0 = [ti.min(ti.cast(u[q], ti.i32), top) for q in ti.static(range(lanes))]
+        j0 = [ti.min(ti.cast(v[q], ti.i32), top) for q in ti.static(range(lanes))]
+        k = [i0[q] * n + j0[q] for q in ti.static(range(lanes))]
+        fu = u - ti.Vector([ti.cast(i0[q], real) for q in ti.static(range(lanes))], dt=real)
+        fv = v - ti.Vector([ti.cast(j0[q], real) for q in ti.static(range(lanes))], dt=real)
+        t00 = ti.Vector([table[k[q]] for q in ti.static(range(lanes))], dt=real)
+        t01 = ti.Vector([table[k[q] + 1] for q in ti.static(range(lanes))], dt=real)
+        t10 = ti.Vector([table[k[q] + n] for q in ti.static(range(lanes))], dt=real)
+        t11 = ti.Vector([table[k[q] + n + 1] for q in ti.static(range(lanes))], dt=real)
+        return ((1.0 - fu) * ((1.0 - fv) * t00 + fv * t01)
+                + fu * ((1.0 - fv) * t10 + fv * t11))
+
+    @ti.func
+    def alpha(s, n, law: ti.template(), table: ti.template()):
+        a = s * 0.0 + law[4]
+        if ti.static(law_kind == "table"):
+            last = law[2]
+            a = bilinear(clamp((s - law[0]) * law[1], last), clamp((n - law[0]) * law[1], last),
+                         last, table)
+        elif ti.static(law_kind == "parametric"):
+            d = s - n
+            ad = ti.select(d > 0.0, d, 0.0 - d)
+            a = (law[0] * exp((0.0 - ad) * law[1])
+                 + law[2] * exp((0.0 - ti.sqrt(s * s + n * n)) * law[3]) + law[4])
+        return a
+
+    return alpha
+
+
+def _pair_functions(plan):
+    """``(shifted, pair, ring_row, combined_flow)``: a vector's neighbours
+    ``dx`` columns away, the alphas of its pairs, where a ring row starts, and
+    the coupling term with pre-combined coefficients."""
+    import taichi as ti
+
+    config = plan.config
+    offsets, r, vertical = config.offsets, config.reach, config.vertical
+    lanes = LANES[config.precision]
+    real = ti.f64 if config.precision == "f64" else ti.f32
+    slots, depth = max(1, len(vertical)), config.ring_depth
+    constant, gated = config.law_kind == "constant", config.uses_ok
+    law_at, combined_at, total_at = plan.law_at, plan.combined_at, plan.total_at
+    alpha = make_vector_alpha(config.law_kind, config.precision)
+
+    @ti.func
+    def shifted(arr: ti.template(), cb, dx: ti.template(), last):
+        """Lanes ``q + dx`` of vector ``cb`` (and of the one beside it):
+        the neighbours ``dx`` columns away of the pixels of vector ``cb``."""
+        v = arr[cb]
+        out = v
+        if ti.static(dx > 0):
+            after = arr[ti.min(cb + 1, last)]
+            out = ti.Vector([v[q] for q in ti.static(range(dx, lanes))]
+                            + [after[q] for q in ti.static(range(dx))], dt=real)
+        elif ti.static(dx < 0):
+            before = arr[ti.max(cb - 1, 0)]
+            out = ti.Vector([before[q] for q in ti.static(range(lanes + dx, lanes))]
+                            + [v[q] for q in ti.static(range(lanes + dx))], dt=real)
+        return out
+
+    @ti.func
+    def law(coef: ti.template()):
+        return ti.Vector([coef[law_at + m] for m in ti.static(range(5))], dt=real)
+
+    @ti.func
+    def pair(src: ti.template(), ok: ti.template(), table: ti.template(), coef: ti.template(),
+             c, nc, last, sv, okc, dy: ti.template(), dx: ti.template()):
+        """alpha of the pairs (p, p + (dy, dx)) for the pixels p of vector ``c``
+        (``sv``: their signals, ``okc``: their ``ok``), gated by ``ok``."""
+        a = sv * 0.0 + coef[law_at + 4]
+        if ti.static(not constant):
+            a = alpha(sv, shifted(src, c + dy * nc, dx, last), law(coef), table)
+        if ti.static(gated):
+            a = a * (okc * shifted(ok, c + dy * nc, dx, last))
+        return a
+
+    @ti.func
+    def ring_row(s, kv: ti.template(), row, nc):
+        """Where frame row ``row``'s vectors of ring slot ``kv`` start (strip ``s``)."""
+        return ((s * slots + kv) * depth + (row + r) % depth) * nc
+
+    @ti.func
+    def combined_flow(src: ti.template(), coef: ti.template(), c, nc, last, sv):
+        """The coupling term with pre-combined coefficients (``StepPlan.combined``)."""
+        gain = sv * 0.0
+        for k in ti.static(range(len(offsets))):
+            dy, dx = ti.static(offsets[k])
+            gain = gain + (coef[combined_at + 2 * k] * shifted(src, c + dy * nc, dx, last)
+                           + coef[combined_at + 2 * k + 1] * shifted(src, c - dy * nc, -dx,
+                                                                     last))
+        return gain - coef[total_at] * sv
+
+    return shifted, pair, ring_row, combined_flow
+
+
+def _vector_functions(plan):
+    """The device functions of the ``lanes`` step: ``(prologue, vector_flow)``
+    (see :func:`lanes_kernel`)."""
+    import taichi as ti
+
+    config = plan.config
+    offsets, r, vertical = config.offsets, config.reach, config.vertical
+    lanes = LANES[config.precision]
+    real = ti.f64 if config.precision == "f64" else ti.f32
+    carried = [k for k, (dy, _) in enumerate(offsets) if dy == 0]
+    constant, gated = config.law_kind == "constant", config.uses_ok
+    shifted, pair, ring_row, combined_flow = _pair_functions(plan)
+
+    @ti.func
+    def prologue(src: ti.template(), ok: ti.template(), table: ti.template(),
+                 coef: ti.template(), ring: ti.template(), s, i0, nc, last):
+        """The ring rows of the pairs that start in the dy rows above the strip."""
+        for kv in ti.static(range(len(vertical))):
+            dy, dx = ti.static(offsets[vertical[kv]])
+            for row in range(i0 - dy, i0):
+                at = ring_row(s, kv, row, nc)
+                for j in range(nc):
+                    c = (row + r) * nc + j
+                    sv = src[c]
+                    okc = sv
+                    if ti.static(gated):
+                        okc = ok[c]
+                    ring[at + j] = pair(src, ok, table, coef, c, nc, last, sv, okc, dy, dx)
+
+    @ti.func
+    def minus_alpha(src: ti.template(), ok: ti.template(), table: ti.template(),
+                    coef: ti.template(), ring: ti.template(), carry: ti.template(), s, i, j,
+                    c, nc, last, ring_last, sv, okc, a_plus, k: ti.template()):
+        """The alpha of the pairs (p - u, p) of offset ``k`` for vector ``c``:
+        fresh (constant law), carried along the row (``dy == 0``) or read back
+        from the ring (``dy > 0``); stores ``a_plus`` for the pixels after."""
+        dy, dx = ti.static(offsets[k])
+        a_minus = a_plus
+        if ti.static(constant):
+            a_minus = pair(src, ok, table, coef, c, nc, last, sv, okc, -dy, -dx)
+        elif ti.static(dy == 0):
+            at = ti.static(carried.index(k) * lanes)
+            a_minus = ti.Vector([carry[at + q] for q in ti.static(range(lanes - dx, lanes))]
+                                + [a_plus[q] for q in ti.static(range(lanes - dx))], dt=real)
+            for q in ti.static(range(lanes)):
+                carry[at + q] = a_plus[q]
+        else:
+            kv = ti.static(plan.ring_index[k])
+            a_minus = shifted(ring, ring_row(s, kv, i - dy, nc) + j, -dx, ring_last)
+            ring[ring_row(s, kv, i, nc) + j] = a_plus
+        return a_minus
+
+    @ti.func
+    def vector_flow(src: ti.template(), ok: ti.template(), table: ti.template(),
+                    coef: ti.template(), ring: ti.template(), carry: ti.template(), s, i, j,
+                    c, nc, last, ring_last, sv):
+        """The coupling term of the pixels of vector ``c`` (row ``i``, vector ``j``)."""
+        okc = sv
+        if ti.static(gated):
+            okc = ok[c]
+        flow = sv * 0.0
+        if ti.static(plan.combined):
+            flow = combined_flow(src, coef, c, nc, last, sv)
+        for k in ti.static(range(len(offsets) if not plan.combined else 0)):
+            dy, dx = ti.static(offsets[k])
+            a_plus = pair(src, ok, table, coef, c, nc, last, sv, okc, dy, dx)
+            a_minus = minus_alpha(src, ok, table, coef, ring, carry, s, i, j, c, nc, last,
+                                  ring_last, sv, okc, a_plus, k)
+            wp = coef[2 * k]  # weight of the move p -> p+u
+            wm = coef[2 * k + 1]  # weight of the move p -> p-u
+            flow = (flow + a_plus * (wm * shifted(src, c + dy * nc, dx, last) - wp * sv)
+                    + a_minus * (wp * shifted(src, c - dy * nc, -dx, last) - wm * sv))
+        return flow
+
+    return prologue, vector_flow
+
+
+def _lane_functions(lanes):
+    """``(largest, magnitude)``: the largest lane of a vector, and ``|v|``
+    lane by lane (compares and selects, as ``larger`` of the other layouts)."""
+    import taichi as ti
+
+    @ti.func
+    def largest(m):
+        """The largest lane of ``m`` (compare and select, as ``larger``)."""
+        a = m[0]
+        for q in ti.static(range(1, lanes)):
+            a = ti.select(m[q] > a, m[q], a)
+        return a
+
+    @ti.func
+    def magnitude(v):
+        return ti.select(v > 0.0, v, 0.0 - v)
+
+    return largest, magnitude
+
+
+def lanes_kernel(plan, coefficients, spread):
+    """The ``lanes`` layout's step for a :class:`~ipc_taichi._kernels.StepPlan`
+    (the arguments of the other layouts' steps, the frame arrays as vectors;
+    ``width``: the frame's width, ``strip``: rows per task, ``spread``: see
+    ``step_sweep`` in :mod:`ipc_taichi._kernels`)."""
+    import taichi as ti
+
+    config = plan.config
+    r, lanes = config.reach, LANES[config.precision]
+    real = ti.f64 if config.precision == "f64" else ti.f32
+    vectors = ti.types.ndarray(dtype=ti.types.vector(lanes, real), ndim=1)
+    scalars = ti.types.ndarray(dtype=real, ndim=1)
+    small = ti.types.ndarray(dtype=real, ndim=2)
+    carry_size = max(1, sum(1 for dy, _ in config.offsets if dy == 0)) * lanes
+    rings = len(config.vertical) > 0 and config.law_kind != "constant"
+    prologue, vector_flow = _vector_functions(plan)
+    largest, magnitude = _lane_functions(lanes)
+
+    @ti.kernel
+    def step_lanes(src: vectors, base: vectors, dst: vectors, ok: vectors, p: scalars,
+                   w: small, table: scalars, sign: real, part: small, ring: vectors,
+                   strip: ti.i32, width: ti.i32):
+        nc = (width + 2 * r + lanes - 1) // lanes
+        h = src.shape[0] // nc - 2 * r
+        last = src.shape[0] - 1
+        ring_last = ring.shape[0] - 1
+        lo = ti.cast(r, real)
+        hi = ti.cast(r + width, real)
+        # one strip per task, spread apart (see step_sweep in _kernels)
+        for task in range((h + strip - 1) // strip * spread):
+            if task % spread == 0:
+                s = task // spread
+                coef = coefficients(p, w)
+                i0 = s * strip
+                i1 = ti.min(h, i0 + strip)
+                if ti.static(rings):
+                    prologue(src, ok, table, coef, ring, s, i0, nc, last)
+                dmax = ti.Vector([0.0] * lanes, dt=real)
+                smax = ti.Vector([0.0] * lanes, dt=real)
+                for i in range(i0, i1):
+                    carry = ti.Vector([0.0] * carry_size, dt=real)
+                    for j in range(nc):
+                        c = (i + r) * nc + j
+                        sv = src[c]
+                        v = base[c] + sign * vector_flow(src, ok, table, coef, ring, carry, s,
+                                                         i, j, c, nc, last, ring_last, sv)
+                        # border lanes (columns outside the frame) stay zero
+                        x = ti.Vector([float(q) for q in ti.static(range(lanes))], dt=real) \
+                            + ti.cast(j * lanes, real)
+                        v = ti.select(x >= lo, ti.select(x < hi, v, 0.0), 0.0)
+                        dst[c] = v
+                        change = magnitude(v - sv)
+                        dmax = ti.select(change > dmax, change, dmax)
+                        size = magnitude(v)
+                        smax = ti.select(size > smax, size, smax)
+                part[s, 0] = largest(dmax)
+                part[s, 1] = largest(smax)
+
+    return step_lanes

@@ -1,0 +1,170 @@
+"""The working arrays of the engine (:mod:`ipc_taichi._engine`) for frames of
+one shape: :class:`Workspace`, allocated once per shape and reused by every
+frame of a stack and by later calls, and :func:`interior`, the frame inside a
+padded array.
+"""
+
+import numpy as np
+
+from . import _kernels
+from ._device import HostCopies, pinned_empty
+from ._kernels import STRIP_LAYOUTS, partials_count
+from ._lanes import aligned_zeros, padded_width
+from .errors import IPCInputError
+
+__all__ = ["Workspace", "interior", "STRIP_ROWS", "PIXEL_THREADS", "MIN_RUN_ROWS"]
+
+# rows per task of the CPU sweep: a strip re-evaluates the dy-row pairs above
+# it (1/STRIP_ROWS extra work for nearest neighbours) and 2 cores need a few
+# dozen tasks to balance when other processes share them
+STRIP_ROWS = 32
+# threads the ``pixel`` layout aims for: an H100 keeps 132 x 2048 = 270 k
+# threads resident, twice that hides the tail of the last wave
+PIXEL_THREADS = 1 << 19
+MIN_RUN_ROWS = 8
+
+
+def interior(padded, reach, shape):
+    """The ``shape`` frame inside a padded array (a view): rows and columns
+    from ``reach`` on (a ``lanes`` row has more border on the right)."""
+    return padded[reach:reach + shape[0], reach:reach + shape[1]]
+
+
+
+class Workspace:
+    """The working arrays for frames of one shape, allocated once and reused.
+
+    ``prev`` and ``nxt`` (padded by ``reach``, zero border never written), the
+    padded ``ok`` byte array (border 1 for the ``zero`` edge, 0 for
+    ``isolated``; interior written by ``load``), the per-thread ``partials``
+    of the stopping-rule maxima, the sweep's ring rows, and on the device path
+    the unpadded ``io`` frame and ``mask`` bytes. On the CPU they are NumPy
+    arrays (Taichi reads them in place); on CUDA Taichi ndarrays in device
+    memory.
+    """
+
+    def __init__(self, info, shape, config, device_buffers):
+        ny, nx = shape
+        r = config.reach
+        self.shape = shape
+        self.reach = r
+        self.layout = config.layout
+        self.device_buffers = device_buffers
+        self.dtype = np.dtype(info.dtype)
+        lanes = config.layout == "lanes"
+        if lanes and device_buffers:
+            raise IPCInputError("layout 'lanes' runs on the CPU's own arrays only; use "
+                                "'sweep' or 'pixel'")
+        padded = (ny + 2 * r, padded_width(nx, r, info.precision) if lanes else nx + 2 * r)
+        if config.layout in STRIP_LAYOUTS:
+            self.strip = STRIP_ROWS
+        else:
+            self.strip = max(MIN_RUN_ROWS, -(-ny * nx // PIXEL_THREADS))
+            # fewer partials than the tree reduces to one row, unless the frame is
+            # wider than that (then maxima() reads the rows the tree leaves)
+            self.strip = max(self.strip,
+                             -(-ny * nx // _kernels.FAN_IN ** _kernels.TREE_LEVELS))
+        self.strip = min(self.strip, ny)
+        self.n_partials = partials_count(config.layout, ny, nx, self.strip)
+        self._made = []
+        # lanes: vectors of L pixels, 64-byte aligned; ok as reals (1.0 = may couple)
+        self._aligned = lanes
+        self.prev = self._zeros(padded, self.dtype)
+        self.nxt = self._zeros(padded, self.dtype)
+        # lanes: the measured frame, padded as the step reads it (base)
+        self.measured = self._zeros(padded, self.dtype) if lanes else None
+        ok_type = self.dtype if lanes else np.uint8
+        ok = self._zeros(padded, ok_type, fill=1 if config.edge == "zero" else 0) \
+            if not device_buffers else np.full(padded, 1 if config.edge == "zero" else 0,
+                                               dtype=np.uint8)
+        interior(ok, r, shape)[...] = 1  # see ok_clean
+        self.ok = ok if not device_buffers else self._zeros(padded, np.uint8)
+        if device_buffers:
+            self.ok.from_numpy(ok)
+        self.partials = self._zeros((self.n_partials, 2), self.dtype)
+        if config.layout in STRIP_LAYOUTS:
+            ring = (-(-ny // STRIP_ROWS), max(1, len(config.vertical)), config.ring_depth,
+                    padded[1])
+        else:
+            ring = (1, 1, 1, 1)
+        self.ring = self._zeros(ring, self.dtype)
+        self.flag = self._zeros((1,), self.dtype)
+        self.no_mask = self._zeros((1, 1), np.uint8)
+        self._io = None
+        self._mask = None
+        self.ok_clean = True  # the interior of ``ok`` is all 1
+        self._staging = None
+        self.copies = HostCopies(info.arch) if device_buffers else None
+
+    def _zeros(self, shape, dtype, fill=0):
+        if self._aligned:
+            arr = aligned_zeros(shape, dtype, fill)
+        elif not self.device_buffers:
+            arr = np.full(shape, fill, dtype=dtype)
+        else:
+            import taichi as ti
+
+            kind = {np.dtype(np.float64): ti.f64, np.dtype(np.float32): ti.f32,
+                    np.dtype(np.uint8): ti.u8}[np.dtype(dtype)]
+            arr = ti.ndarray(dtype=kind, shape=shape)
+            arr.fill(fill)
+        self._made.append(int(np.prod(shape)) * np.dtype(dtype).itemsize)
+        return arr
+
+    @property
+    def nbytes(self):
+        """Bytes of every buffer this workspace has allocated."""
+        return sum(self._made)
+
+    @property
+    def io(self):
+        """The unpadded frame on the device (device path, NumPy input)."""
+        if self._io is None:
+            self._io = self._zeros(self.shape, self.dtype)
+        return self._io
+
+    def mask_buffer(self):
+        if self._mask is None:
+            self._mask = self._zeros(self.shape, np.uint8)
+        return self._mask
+
+    def staging(self, arch):
+        """A host frame in the runtime dtype, page-locked on CUDA, for inputs
+        that must be converted before the upload (other dtype, strided)."""
+        if self._staging is None:
+            self._staging = pinned_empty(self.shape, self.dtype, arch=arch)
+        return self._staging
+
+    def read(self, array, n):
+        """The first ``n`` values of a small buffer (maxima, flag) as floats."""
+        if not self.device_buffers:
+            return [float(v) for v in array.reshape(-1)[:n]]
+        host = np.empty(n, dtype=self.dtype)
+        self.copies.download(host, array)  # copies host.nbytes from the start
+        return [float(v) for v in host]
+
+    def clear_flag(self):
+        if self.device_buffers:
+            self.copies.upload(self.flag, np.zeros(1, dtype=self.dtype))
+        else:
+            self.flag[0] = 0
+
+    def maxima(self):
+        """``(max|dst - src|, max|dst|)`` of the last step: the maximum over the
+        rows the tree leaves (``pixel``: row 0 unless the frame is wider than
+        the tree's capacity) or over the strips' rows (``sweep``)."""
+        n = self.n_partials if self.layout in STRIP_LAYOUTS \
+            else _kernels.tree_rows(self.n_partials)
+        if self.device_buffers:
+            rows = np.empty((n, 2), dtype=self.dtype)
+            self.copies.download(rows, self.partials)
+        else:
+            rows = self.partials[:n]
+        d, s = rows.max(axis=0)
+        return float(d), float(s)
+
+    def estimate(self, src):
+        """The current estimate as a NumPy frame (a view on the CPU path, a
+        copy from the device otherwise)."""
+        padded = src.to_numpy() if self.device_buffers else src
+        return interior(padded, self.reach, self.shape)
