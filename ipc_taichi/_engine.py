@@ -299,6 +299,7 @@ class _Run:
         ok, table, ring = ws.ok, self.table, ws.ring
         if config.layout == "lanes":  # vectors of L pixels; the measured frame padded
             lanes = lane_count(config.precision)
+            ok = ws.ok_array() if config.uses_ok else ws.no_ok
             src, base, dst, ok, ring = (_flat(a).reshape(-1, lanes)
                                         for a in (src, ws.measured, dst, ok, ring))
             table = _flat(table)
@@ -384,7 +385,7 @@ def _load_host(host, bad, io, ws, shift=None):
         if any_bad:
             start[bad_px] = 0.0
     if any_bad or not ws.ok_clean:
-        interior(ws.ok, ws.reach, ws.shape)[...] = True if good is None else good
+        interior(ws.ok_array(), ws.reach, ws.shape)[...] = True if good is None else good
         ws.ok_clean = not any_bad
     return base, any_bad
 

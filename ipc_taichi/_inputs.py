@@ -126,11 +126,15 @@ def _torch_integers(torch):
     return tuple(getattr(torch, n) for n in names if hasattr(torch, n))
 
 
-def as_result(stack, frames):
+def as_result(stack, frames, out=None):
     """The result stack shaped and typed as the input was given: a frame for a
     2-D input, a masked array (with the input's mask) for a masked input, the
-    input's kind for a device array."""
+    input's kind for a device array; the caller's NumPy ``out`` itself when
+    one was given (as NumPy's ``out=`` does)."""
     result = stack[0] if frames.was_2d else stack
+    if isinstance(out, np.ndarray) and frames.kind == "numpy" \
+            and not isinstance(frames.like, np.ma.MaskedArray):
+        return out
     if frames.kind != "numpy":
         return from_torch(result, frames.kind, frames.like)
     if isinstance(frames.like, np.ma.MaskedArray):

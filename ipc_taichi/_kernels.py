@@ -44,7 +44,9 @@ CPU each extra parallel task costs a wake-up of the thread pool, more than the
 few dozen comparisons. A maximum is exact in any order, so the result does not
 depend on the layout or the reduction.
 
-Two loop layouts, chosen at compile time (``KernelConfig.layout``):
+Three loop layouts, chosen at compile time (``KernelConfig.layout``): the two
+below, and ``lanes`` (the CPU's default), the ``sweep`` on vectors of ``L``
+pixels, SIMD, bit-identical to it (:mod:`ipc_taichi._lanes`).
 
 ``sweep`` (CPU)
     Rows are cut into strips, one strip per task; a task sweeps its rows left

@@ -73,14 +73,18 @@ class Workspace:
         self.nxt = self._zeros(padded, self.dtype)
         # lanes: the measured frame, padded as the step reads it (base)
         self.measured = self._zeros(padded, self.dtype) if lanes else None
-        ok_type = self.dtype if lanes else np.uint8
-        ok = self._zeros(padded, ok_type, fill=1 if config.edge == "zero" else 0) \
-            if not device_buffers else np.full(padded, 1 if config.edge == "zero" else 0,
-                                               dtype=np.uint8)
-        interior(ok, r, shape)[...] = 1  # see ok_clean
-        self.ok = ok if not device_buffers else self._zeros(padded, np.uint8)
-        if device_buffers:
-            self.ok.from_numpy(ok)
+        self._padded, self._edge = padded, config.edge
+        self.ok = None
+        if lanes:  # reals (1.0 = may couple), made when first needed (see ok_array)
+            self.no_ok = self._zeros((1, padded[1]), self.dtype)  # what a step without gating gets
+            if config.edge == "isolated":
+                self.ok_array()
+        elif device_buffers:
+            self.ok = self._zeros(padded, np.uint8)
+            self.ok.from_numpy(self._ok_values(np.uint8))
+        else:
+            self.ok = self._ok_values(np.uint8)
+            self._made.append(self.ok.nbytes)
         self.partials = self._zeros((self.n_partials, 2), self.dtype)
         if config.layout in STRIP_LAYOUTS:
             ring = (-(-ny // STRIP_ROWS), max(1, len(config.vertical)), config.ring_depth,
@@ -95,6 +99,24 @@ class Workspace:
         self.ok_clean = True  # the interior of ``ok`` is all 1
         self._staging = None
         self.copies = HostCopies(info.arch) if device_buffers else None
+
+    def _ok_values(self, dtype):
+        """``ok`` for a frame without bad pixels: border 1 (``zero`` edge) or 0
+        (``isolated``), interior 1 (see ``ok_clean``)."""
+        fill = 1 if self._edge == "zero" else 0
+        ok = aligned_zeros(self._padded, dtype, fill) if self._aligned \
+            else np.full(self._padded, fill, dtype=dtype)
+        interior(ok, self.reach, self.shape)[...] = 1
+        return ok
+
+    def ok_array(self):
+        """The padded ``ok`` array, made on the first call of a ``lanes``
+        workspace (a frame's worth of reals: only steps that gate alphas read
+        it, those with the ``isolated`` edge or bad pixels)."""
+        if self.ok is None:
+            self.ok = self._ok_values(self.dtype)
+            self._made.append(self.ok.nbytes)
+        return self.ok
 
     def _zeros(self, shape, dtype, fill=0):
         if self._aligned:

@@ -45,9 +45,10 @@ def couple(signal, law=None, geometry=None, edge=None, arch=None, precision=None
         What lies beyond the frame (see module docstring); ``None``: ``"zero"``.
     arch, precision : str, optional
         Passed to :func:`ipc_taichi.runtime.init`.
-    layout : {None, "sweep", "pixel"}
+    layout : {None, "lanes", "sweep", "pixel"}
         Kernel loop layout (see :mod:`ipc_taichi._kernels`); ``None`` picks the
-        one that suits the arch. Results agree to rounding.
+        one that suits the arch (``lanes`` on the CPU, ``pixel`` on CUDA). Results
+        agree to rounding (``lanes`` and ``sweep`` bit for bit).
     model : CouplingModel, str or path-like, optional
         The law, geometry and edge as one value, or the path of a model file
         (:meth:`ipc_taichi.model.CouplingModel.load`); then ``law``,
@@ -81,4 +82,4 @@ def couple(signal, law=None, geometry=None, edge=None, arch=None, precision=None
     model = CouplingModel.resolve(law, geometry, edge, model=model)
     info = start(arch, precision)
     result = run_couple(frames, model, info, layout, out=out)
-    return as_result(result, frames)
+    return as_result(result, frames, out)

@@ -84,9 +84,10 @@ def decouple(measured, law=None, geometry=None, edge=None, max_iter=iteration.MA
         working array on the CPU; on CUDA each call copies it to the host).
     full_output : bool
         Also return a :class:`DecoupleInfo` (a list of them for a 3-D stack).
-    layout : {None, "sweep", "pixel"}
+    layout : {None, "lanes", "sweep", "pixel"}
         Kernel loop layout (see :mod:`ipc_taichi._kernels`); ``None`` picks the
-        one that suits the arch. Results agree to rounding.
+        one that suits the arch (``lanes`` on the CPU, ``pixel`` on CUDA). Results
+        agree to rounding (``lanes`` and ``sweep`` bit for bit).
     model : CouplingModel, str or path-like, optional
         The law, geometry and edge as one value, or the path of a model file
         (:meth:`ipc_taichi.model.CouplingModel.load`); then ``law``,
@@ -151,7 +152,7 @@ def decouple(measured, law=None, geometry=None, edge=None, max_iter=iteration.MA
 
     result = run_decouple(frames, model, info, layout, iterate, out=out,
                           warm_start=bool(warm_start))
-    signal = as_result(result, frames)
+    signal = as_result(result, frames, out)
     if full_output:
         return signal, (infos[0] if frames.was_2d else infos)
     return signal

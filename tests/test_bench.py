@@ -99,7 +99,11 @@ def test_cuda_section_runs_on_cpu_stand_in(cpu, torch):
                      "floor: device copy of the frame", "floor: plain step (4 alphas, no maxima)"):
             assert rows[(name, prec)]["median_ms"] > 0
         host = rows[("host in/out (NumPy)", prec)]
-        assert host["workspace_bytes"] <= 3.5 * host["frame_bytes"]
+        # the CPU's lanes workspace: three padded frames (estimate, next, measured),
+        # rows of 40 + 2 border pixels rounded up to whole 64-byte vectors (48 in both
+        # precisions), 42 rows: 1.26x the frame's area at this size, 1.002x at 4096
+        padding = 42 * 48 / 40 ** 2
+        assert host["workspace_bytes"] <= 3.5 * padding * host["frame_bytes"]
     assert any("CuPy" in n for n in cuda["notes"])
     text = render_cuda(cuda)
     assert "device-resident (torch)" in text and "ms: met" not in text and "NOT met" not in text

@@ -81,7 +81,7 @@ def test_changing_coefficients_does_not_recompile(cpu, rng):
     with_constant = get_step_kernel.cache_info().currsize
     assert with_constant <= kernels_before + 1
     constant_kernel = get_step_kernel(KernelConfig(((0, 1), (1, 0)), "constant", "zero", False,
-                                                   "f64"))
+                                                   "f64", "lanes"))  # the CPU's layout
     assert len(constant_kernel._primal.compiled_kernels) == 1
     ipc_taichi.decouple(ipc_taichi.couple(signal, law="constant:0.01"), law="constant:0.01")
     assert get_step_kernel.cache_info().currsize == with_constant
@@ -90,4 +90,5 @@ def test_changing_coefficients_does_not_recompile(cpu, rng):
 
 def _live_kernels():
     # the lru_cache keeps the kernels it built; reach them through a known config
-    return [get_step_kernel(KernelConfig(((0, 1), (1, 0)), "parametric", "zero", False, "f64"))]
+    return [get_step_kernel(KernelConfig(((0, 1), (1, 0)), "parametric", "zero", False, "f64",
+                                         "lanes"))]  # the CPU's layout

@@ -185,6 +185,9 @@ def test_out_argument(cpu, rng, torch):
     out = np.empty_like(measured)
     got = ipc_taichi.decouple(measured, out=out)
     assert got is out and same(out, ipc_taichi.decouple(measured))
+    frame_out = np.empty_like(measured[0])  # a frame's out is given back itself too
+    assert ipc_taichi.decouple(measured[0], out=frame_out) is frame_out
+    assert ipc_taichi.couple(measured[0], out=frame_out) is frame_out
     with pytest.raises(IPCInputError, match="out: expected"):
         ipc_taichi.decouple(measured, out=np.empty((2, 20, 23)))
     tout = torch.empty(20, 24, dtype=torch.float64)
