@@ -285,6 +285,7 @@ class _Run:
                 mask = ws.mask_buffer()
                 ws.copies.upload(mask, np.ascontiguousarray(bad, dtype=np.uint8))
         ws.clear_flag()
+        ws.start = ws.prev
         self.kernels.load(io, io, 0, mask, 0 if bad is None else 1, ws.prev, ws.ok, ws.reach,
                           ws.flag)
         any_bad = ws.read(ws.flag, 1)[0] != 0
@@ -375,15 +376,18 @@ def _load_host(host, bad, io, ws, shift=None):
             np.copyto(io, host)
         io[bad_px] = 0.0
         base = io
+    ws.start = ws.prev
     if ws.measured is not None:  # lanes: the step reads the measured frame padded
         interior(ws.measured, ws.reach, ws.shape)[...] = base
+        if shift is None:  # S_0 = M: the first step reads the measured frame itself
+            ws.start = ws.measured
     start = interior(ws.prev, ws.reach, ws.shape)
-    if shift is None:
-        start[...] = base
-    else:  # a warm start, S_0 = M + shift, in the same pass
+    if shift is not None:  # a warm start, S_0 = M + shift, in the same pass
         np.add(base, shift, out=start)
         if any_bad:
             start[bad_px] = 0.0
+    elif ws.start is ws.prev:
+        start[...] = base
     if any_bad or not ws.ok_clean:
         interior(ws.ok_array(), ws.reach, ws.shape)[...] = True if good is None else good
         ws.ok_clean = not any_bad
@@ -423,7 +427,7 @@ def run_couple(frames, model, info, layout, out=None):
         with run.pinned(out):
             for k in range(frames.shape[0]):
                 base, io, any_bad = run.load(k, out)
-                run.step(any_bad, ws.prev, base, ws.nxt, +1.0)
+                run.step(any_bad, ws.start, base, ws.nxt, +1.0)
                 run.finish(k, io, ws.nxt, out, any_bad)
         order.adopt(out if frames.on_device else None)
     return out
@@ -432,7 +436,7 @@ def run_couple(frames, model, info, layout, out=None):
 def run_decouple(frames, model, info, layout, iterate, out=None, warm_start=False):
     """Decouple every frame; ``iterate(k, step, ws, warm)`` runs the Jacobi
     iterations of frame ``k`` (the rules live with the caller) from the start
-    the engine loaded into ``ws.prev`` and returns the padded array holding the
+    the engine loaded into ``ws.start`` and returns the padded array holding the
     answer; ``warm`` says whether that start is the warm one (see
     :class:`WarmStart`; only with ``warm_start`` and from the second frame on)."""
     with ENGINE_LOCK, _stream_order(frames) as order:

@@ -73,6 +73,7 @@ class Workspace:
         self.nxt = self._zeros(padded, self.dtype)
         # lanes: the measured frame, padded as the step reads it (base)
         self.measured = self._zeros(padded, self.dtype) if lanes else None
+        self.start = self.prev  # where the frame's S_0 is (the engine's load says)
         self._padded, self._edge = padded, config.edge
         self.ok = None
         if lanes:  # reals (1.0 = may couple), made when first needed (see ok_array)

@@ -159,18 +159,19 @@ def decouple(measured, law=None, geometry=None, edge=None, max_iter=iteration.MA
 
 
 def _iterate(step, ws, max_iter, tol, callback, record):
-    """Jacobi iterations from ``S_0`` in ``ws.prev`` (loaded by the engine:
-    ``M``, or the warm start);
+    """Jacobi iterations from ``S_0`` in ``ws.start`` (loaded by the engine:
+    ``M``, or the warm start, in ``ws.prev``; on the ``lanes`` path without a
+    warm start, the padded measured frame itself, which no step writes);
     returns the padded array holding the answer. The two working arrays swap
     roles every iteration; their borders stay zero (never written)."""
-    prev, nxt = ws.prev, ws.nxt
+    prev, nxt = ws.start, ws.nxt
     for q in range(1, max_iter + 1):
         dmax, smax = step(prev, nxt)
         record.iterations = q
         record.max_delta.append(dmax)
         record.max_signal.append(smax)
         iteration.check_divergence(record.max_delta, record.max_signal)
-        prev, nxt = nxt, prev
+        prev, nxt = nxt, (ws.prev if prev is ws.measured else prev)
         if callback is not None:
             callback(q, ws.estimate(prev))
         if iteration.met(dmax, smax, tol):
