@@ -466,8 +466,8 @@ def correct_frames(data, operation, model, *, mask=None, region=None, scale=1.0,
     masks = None if mask is None else np.broadcast_to(mask, shape).reshape((-1, ny, nx))
     if out is None:
         out = np.array(data, dtype=np.float64)
-    else:
-        out[...] = data
+    else:  # the region is written frame by frame below; the rest kept from data
+        _copy_outside(out, data, region)
     flat_out = out.reshape((-1, ny, nx))
     s = np.asarray(scale, dtype=np.float64)
     s_in = s[region] if s.ndim == 2 else s
@@ -493,8 +493,9 @@ def correct_frames(data, operation, model, *, mask=None, region=None, scale=1.0,
                              for k, where in zip(ks, wheres)))
         results, run_infos = _solve(measured, ms, base, cached, wheres, settings)
         for k, y, m, result, info in zip(ks, measured, ms, results, run_infos):
-            with np.errstate(divide="ignore", invalid="ignore"):  # no gain: masked
-                result = result / s_in
+            if not _unit(s_in):  # (electrons already: dividing by 1 changes no bit)
+                with np.errstate(divide="ignore", invalid="ignore"):  # no gain: masked
+                    result = result / s_in
             target = flat_out[k][region]
             target[...] = result if m is None else np.where(m, frames[k][region], result)
             if noisy:
@@ -508,7 +509,9 @@ def correct_frames(data, operation, model, *, mask=None, region=None, scale=1.0,
 
 def _frame_in(frame, s, s_in, base, record, where, offset, operation, flagged):
     """One frame's measured charge (electrons) and its mask (None when none)."""
-    measured = frame.astype(np.float64) * s_in
+    measured = frame.astype(np.float64)
+    if not _unit(s_in):
+        measured *= s_in
     m = untrusted([], 0, measured.shape, flagged, gain=s_in if s.ndim == 2 else None)
     bad = record.add(measured if base is None else measured + base, m, where, offset)
     if bad is not None:
@@ -518,6 +521,26 @@ def _frame_in(frame, s, s_in, base, record, where, offset, operation, flagged):
         raise IPCInputError(f"{where}: no finite, unmasked pixel to {operation} "
                             "(all NaN, flagged or unphysical)")
     return measured, m
+
+
+def _copy_outside(out, data, region):
+    """``out = data`` outside ``region`` (rows above and below it, columns
+    left and right of it), in four slabs: inside it every pixel is written by
+    the frame loop (its result, or the input for a masked pixel)."""
+    ys, xs = region
+    ny, nx = data.shape[-2:]
+    y0, y1 = ys.start or 0, ny if ys.stop is None else ys.stop
+    x0, x1 = xs.start or 0, nx if xs.stop is None else xs.stop
+    for part in ((slice(0, y0), slice(None)), (slice(y1, ny), slice(None)),
+                 (slice(y0, y1), slice(0, x0)), (slice(y0, y1), slice(x1, nx))):
+        out[(Ellipsis,) + part] = data[(Ellipsis,) + part]
+
+
+def _unit(scale):
+    """Whether the electrons-per-unit factor is the number 1 (a frame in
+    electrons): multiplying and dividing by it are then skipped, which saves a
+    pass over the frame each and changes no bit."""
+    return scale.ndim == 0 and float(scale) == 1.0
 
 
 def _solve(measured, masks, base, cached, wheres, settings):
