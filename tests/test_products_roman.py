@@ -5,6 +5,8 @@ filled with a truth in electrons coupled by the independent NumPy model.
 """
 
 import os
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -122,3 +124,19 @@ def test_ramp_resultants(cli, tmp_path, rng):
         err = np.abs(got[k] - truth[k])[4:-4, 4:-4]
         ok = far[4:-4, 4:-4] if k == 1 else slice(None)
         assert err[ok].max() <= 2e-5 * truth[k].max(), k
+
+
+def test_roman_dq_flags_read_without_importing_the_package():
+    """The Roman DQ bits the FITS path uses are roman_datamodels' own, read from
+    its dqflags.py alone (the package import takes 2 s of a command line)."""
+    dqflags = pytest.importorskip("roman_datamodels.dqflags")
+    from ipc_taichi.products import missions
+
+    want = {str(k): int(v) for k, v in dqflags.pixel.__members__.items()}
+    assert missions._flag_table("Roman") == want and want["SATURATED"] == 2
+    code = ("import sys; from astropy.io import fits; from ipc_taichi.products import missions; "
+            "m = missions.recognise(fits.Header({'TELESCOP': 'ROMAN', 'INSTRUME': 'WFI'})); "
+            "print(m.name, m.dq_flags['DO_NOT_USE'], 'roman_datamodels' in sys.modules)")
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True)
+    assert run.stdout.split() == ["Roman", str(want["DO_NOT_USE"]), "False"]

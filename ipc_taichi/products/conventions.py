@@ -474,7 +474,7 @@ def correct_frames(data, operation, model, *, mask=None, region=None, scale=1.0,
     base = None if pedestal is None else np.asarray(pedestal, dtype=np.float64)[region]
     after_frame, after_iteration = reporters(progress, frames.shape[0], max_iter)
     settings = dict(operation=operation, model=model, max_iter=max_iter, tol=tol, arch=arch,
-                    precision=precision, callback=after_iteration)
+                    precision=precision, callback=after_iteration, spare={})
     record = unphysical if isinstance(unphysical, Unphysical) else Unphysical(unphysical)
     offset = (region[0].start or 0, region[1].start or 0)
     if any(not v.flags.c_contiguous for v in (noise or {}).values()):
@@ -488,8 +488,11 @@ def correct_frames(data, operation, model, *, mask=None, region=None, scale=1.0,
         check_stop()  # a SIGINT/SIGTERM swallowed by a library stops the run here
         ks = range(k0, k0 + groups)
         wheres = [f"{label} frame {k}" if frames.shape[0] > 1 else label for k in ks]
+        # one frame at a time: the previous frame's charge array, done with, is reused
+        into = settings["spare"].pop("in", None) if groups == 1 else None
         measured, ms = zip(*(_frame_in(frames[k][region], s, s_in, base, record, where, offset,
-                                       operation, None if masks is None else masks[k][region])
+                                       operation, None if masks is None else masks[k][region],
+                                       into)
                              for k, where in zip(ks, wheres)))
         results, run_infos = _solve(measured, ms, base, cached, wheres, settings)
         for k, y, m, result, info in zip(ks, measured, ms, results, run_infos):
@@ -503,13 +506,20 @@ def correct_frames(data, operation, model, *, mask=None, region=None, scale=1.0,
             infos.append(info)
             if after_frame is not None:
                 after_frame(k + 1)
+        if groups == 1:
+            settings["spare"]["in"] = measured[0]
     record.warn(label)
     return out, infos
 
 
-def _frame_in(frame, s, s_in, base, record, where, offset, operation, flagged):
-    """One frame's measured charge (electrons) and its mask (None when none)."""
-    measured = frame.astype(np.float64)
+def _frame_in(frame, s, s_in, base, record, where, offset, operation, flagged, into=None):
+    """One frame's measured charge (electrons) and its mask (None when none);
+    written into ``into`` (a float64 array the caller has done with) when it fits."""
+    if into is not None and into.shape == frame.shape:
+        measured = into
+        np.copyto(measured, frame, casting="unsafe")
+    else:
+        measured = frame.astype(np.float64)
     if not _unit(s_in):
         measured *= s_in
     m = untrusted([], 0, measured.shape, flagged, gain=s_in if s.ndim == 2 else None)
@@ -561,7 +571,7 @@ def _solve(measured, masks, base, cached, wheres, settings):
         for i, (m, w) in enumerate(zip(masks, wheres)):
             key = None if m is None else m.tobytes()
             if key not in cached:  # the pedestal through the same law, once per mask
-                cached[key] = _run(base, m, w, **settings)[0]
+                cached[key] = _run(base, m, w, **{**settings, "spare": None})[0]
             results[i] = results[i] - cached[key]
     return results, infos
 
@@ -577,16 +587,26 @@ def _propagate(noisy, k, region, solution, measured, mask, model, s_in, base):
         given[name][...] = value
 
 
-def _run(charge, mask, where, operation, model, max_iter, tol, arch, precision, callback):
+def _run(charge, mask, where, operation, model, max_iter, tol, arch, precision, callback,
+         spare=None):
     """One frame in electrons (or a ramp's groups: warm-started) through the
-    decoupler or the forward model."""
+    decoupler or the forward model. ``spare`` (a dict, or None): the previous
+    frame's decoupled array, which the caller has done with, is written again
+    (``out=``) instead of a new one (whose first touch of every page costs as
+    much as the copy into it), and this frame's is left there."""
+    out = None if spare is None else spare.pop("frame", None)
+    if out is not None and out.shape != np.shape(charge):
+        out = None
     with warnings.catch_warnings(), named(where):
         warnings.simplefilter("ignore", ConvergenceWarning)  # reported per frame by callers
         if operation == "decouple":
             result, info = decouple(charge, model=model, mask=mask, max_iter=max_iter,
                                     tol=tol, arch=arch, precision=precision, full_output=True,
-                                    callback=callback, warm_start=np.ndim(charge) == 3)
+                                    callback=callback, warm_start=np.ndim(charge) == 3,
+                                    out=out)
+            if spare is not None and type(result) is np.ndarray and result.ndim == 2:
+                spare["frame"] = result
         else:
             result, info = couple(charge, model=model, mask=mask, arch=arch,
                                   precision=precision), None
-    return np.array(np.ma.getdata(result), dtype=np.float64), info
+    return np.asarray(np.ma.getdata(result), dtype=np.float64), info
