@@ -21,7 +21,7 @@ def kernel_law_kind(law):
     return law.kind
 
 
-def make_exp(real_is_f64):
+def make_exp(real_is_f64, vector=False):
     """An inlinable ``exp(x)`` for ``x <= 0`` (the law's arguments).
 
     Cody-Waite range reduction ``x = n ln2 + r`` (|r| <= ln2/2), a Taylor
@@ -30,14 +30,49 @@ def make_exp(real_is_f64):
     with the round-to-integer "magic number" trick (no float->int conversion).
     f64: degree 12, relative error < 1e-15; f32: degree 7, < 3e-7. Inputs below
     the smallest normal result are clamped (exp(-708) ~ 3e-308 instead of 0).
+
+    ``vector``: for a Taichi vector compiled as one (the ``lanes`` layout,
+    :mod:`ipc_taichi._lanes`), where bit casts do not compile: the clamp is a
+    compare and select, and ``2**n`` (``n`` an integer in ``[-1022, 0]`` (f64)
+    or ``[-126, 0]`` (f32) after the clamp) a product of the powers ``2**-b``
+    (b = 512, ..., 1) that the bits of ``-n`` select, each product exact: the
+    same value as the bit-built one.
     """
     import taichi as ti
+
+    lowest = -708.0 if real_is_f64 else -87.0
+    bits = [float(2 ** e) for e in range(9 if real_is_f64 else 6, -1, -1)]
+
+    @ti.func
+    def clamp(x):
+        out = x
+        if ti.static(vector):
+            out = ti.select(x > lowest, x, lowest)
+        else:
+            out = ti.max(x, lowest)
+        return out
+
+    @ti.func
+    def power_of_two(t, n):
+        """``2**n``; ``t`` = ``n`` plus the magic number (its low bits are ``n``)."""
+        scale = n * 0.0 + 1.0
+        if ti.static(vector):
+            m = 0.0 - n
+            for b in ti.static(bits):
+                take = m >= b
+                scale = scale * ti.select(take, 2.0 ** -b, 1.0)
+                m = m - ti.select(take, b, 0.0)
+        elif ti.static(real_is_f64):
+            scale = ti.bit_cast((ti.bit_cast(t, ti.i64) + 1023) << 52, ti.f64)
+        else:
+            scale = ti.bit_cast((ti.bit_cast(t, ti.i32) + 127) << 23, ti.f32)
+        return scale
 
     if real_is_f64:
         @ti.func
         def exp(x):
             magic = 6755399441055744.0  # 1.5 * 2**52
-            x = ti.max(x, -708.0)
+            x = clamp(x)
             t = x * 1.4426950408889634 + magic
             n = t - magic
             r = x - n * 0.6931471803691238 - n * 1.9082149292705877e-10
@@ -49,13 +84,12 @@ def make_exp(real_is_f64):
             d2 = ((1.0 / 40320.0 + r * (1.0 / 362880.0))
                   + r2 * (1.0 / 3628800.0 + r * (1.0 / 39916800.0)))
             p = (d0 + r4 * d1) + r8 * (d2 + r4 * (1.0 / 479001600.0))
-            scale = ti.bit_cast((ti.bit_cast(t, ti.i64) + 1023) << 52, ti.f64)
-            return p * scale
+            return p * power_of_two(t, n)
     else:
         @ti.func
         def exp(x):
             magic = ti.f32(12582912.0)  # 1.5 * 2**23
-            x = ti.max(x, ti.f32(-87.0))
+            x = clamp(x)
             t = x * ti.f32(1.442695) + magic
             n = t - magic
             r = x - n * ti.f32(0.693145751953125) - n * ti.f32(1.428606765330187e-06)
@@ -65,8 +99,7 @@ def make_exp(real_is_f64):
             d1 = ((ti.f32(1.0 / 24.0) + r * ti.f32(1.0 / 120.0))
                   + r2 * (ti.f32(1.0 / 720.0) + r * ti.f32(1.0 / 5040.0)))
             p = d0 + r4 * d1
-            scale = ti.bit_cast((ti.bit_cast(t, ti.i32) + 127) << 23, ti.f32)
-            return p * scale
+            return p * power_of_two(t, n)
     return exp
 
 

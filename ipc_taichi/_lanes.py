@@ -35,20 +35,22 @@ vector beside it. Each pair's alpha is evaluated once: a pair along the row
 later (shifted by ``dx`` lanes). Lanes in the border columns are computed
 with the rest and written as zero, which keeps the border what it was; a
 read beyond either end of the array is clamped to its end (it feeds border
-lanes only). The law's exponentials use :func:`make_vector_exp` (the same
-polynomial as :func:`ipc_taichi._alpha.make_exp`, ``2**n`` as a product of
-powers of two chosen by compares: vectors have no bit casts here); the table
-law reads its four corners lane by lane.
+lanes only). The law's exponentials are those of the other layouts,
+:func:`ipc_taichi._alpha.make_exp` with ``vector=True`` (``2**n`` as a
+product of powers of two chosen by compares: vectors have no bit casts here);
+the table law reads its four corners lane by lane.
 
 Things this compilation mode does not take on a vector (they crash at compile
 time): unary minus, ``ti.abs``, ``ti.exp``, casts and bit casts; the code
 below uses ``0 - x``, compares and selects instead.
 """
 
-__all__ = ["LANES", "ALIGN", "lane_count", "padded_width", "aligned_zeros", "make_vector_exp",
+__all__ = ["LANES", "ALIGN", "lane_count", "padded_width", "aligned_zeros",
            "make_vector_alpha", "lanes_kernel"]
 
 import numpy as np
+
+from ._alpha import make_exp
 
 LANES = {"f64": 8, "f32": 16}
 """Pixels per vector: 64 bytes (one AVX-512 register, two AVX2 ones)."""
@@ -78,61 +80,6 @@ def aligned_zeros(shape, dtype, fill=0):
     return arr
 
 
-def make_vector_exp(real_is_f64):
-    """``exp(x)`` of a vector ``x <= 0``: the range reduction and polynomial of
-    :func:`ipc_taichi._alpha.make_exp` (same operations, same rounding), with
-    ``2**n`` (``n`` an integer in ``[-1022, 0]`` (f64) or ``[-126, 0]`` (f32)
-    after the clamp) built as a product of the powers ``2**-b`` (b = 512, ...,
-    1) that the bits of ``-n`` select: each product is exact."""
-    import taichi as ti
-
-    bits = [float(2 ** e) for e in range(9 if real_is_f64 else 6, -1, -1)]
-
-    @ti.func
-    def power_of_two(n):
-        m = 0.0 - n
-        scale = n * 0.0 + 1.0
-        for b in ti.static(bits):
-            take = m >= b
-            scale = scale * ti.select(take, 2.0 ** -b, 1.0)
-            m = m - ti.select(take, b, 0.0)
-        return scale
-
-    if real_is_f64:
-        @ti.func
-        def exp(x):
-            magic = 6755399441055744.0  # 1.5 * 2**52
-            x = ti.select(x > -708.0, x, -708.0)
-            t = x * 1.4426950408889634 + magic
-            n = t - magic
-            r = x - n * 0.6931471803691238 - n * 1.9082149292705877e-10
-            r2 = r * r
-            r4 = r2 * r2
-            r8 = r4 * r4
-            d0 = (1.0 + r) + r2 * (0.5 + r * (1.0 / 6.0))
-            d1 = (1.0 / 24.0 + r * (1.0 / 120.0)) + r2 * (1.0 / 720.0 + r * (1.0 / 5040.0))
-            d2 = ((1.0 / 40320.0 + r * (1.0 / 362880.0))
-                  + r2 * (1.0 / 3628800.0 + r * (1.0 / 39916800.0)))
-            p = (d0 + r4 * d1) + r8 * (d2 + r4 * (1.0 / 479001600.0))
-            return p * power_of_two(n)
-    else:
-        @ti.func
-        def exp(x):
-            magic = ti.f32(12582912.0)  # 1.5 * 2**23
-            x = ti.select(x > ti.f32(-87.0), x, ti.f32(-87.0))
-            t = x * ti.f32(1.442695) + magic
-            n = t - magic
-            r = x - n * ti.f32(0.693145751953125) - n * ti.f32(1.428606765330187e-06)
-            r2 = r * r
-            r4 = r2 * r2
-            d0 = (ti.f32(1.0) + r) + r2 * (ti.f32(0.5) + r * ti.f32(1.0 / 6.0))
-            d1 = ((ti.f32(1.0 / 24.0) + r * ti.f32(1.0 / 120.0))
-                  + r2 * (ti.f32(1.0 / 720.0) + r * ti.f32(1.0 / 5040.0)))
-            p = d0 + r4 * d1
-            return p * power_of_two(n)
-    return exp
-
-
 def make_vector_alpha(law_kind, precision):
     """``alpha(s, n, law, table)`` of two vectors of signals: the law of
     :func:`ipc_taichi._alpha.make_alpha`, lane by lane (``law``: the 5 kernel
@@ -141,7 +88,7 @@ def make_vector_alpha(law_kind, precision):
 
     lanes = LANES[precision]
     real = ti.f64 if precision == "f64" else ti.f32
-    exp = make_vector_exp(precision == "f64")
+    exp = make_exp(precision == "f64", vector=True)
 
     @ti.func
     def clamp(u, last):

@@ -488,15 +488,14 @@ def correct_frames(data, operation, model, *, mask=None, region=None, scale=1.0,
         check_stop()  # a SIGINT/SIGTERM swallowed by a library stops the run here
         ks = range(k0, k0 + groups)
         wheres = [f"{label} frame {k}" if frames.shape[0] > 1 else label for k in ks]
-        # one frame at a time: the previous frame's charge array, done with, is reused
-        into = settings["spare"].pop("in", None) if groups == 1 else None
+        into = settings["spare"].pop("in", None) if groups == 1 else None  # done with
         measured, ms = zip(*(_frame_in(frames[k][region], s, s_in, base, record, where, offset,
                                        operation, None if masks is None else masks[k][region],
                                        into)
                              for k, where in zip(ks, wheres)))
         results, run_infos = _solve(measured, ms, base, cached, wheres, settings)
         for k, y, m, result, info in zip(ks, measured, ms, results, run_infos):
-            if not _unit(s_in):  # (electrons already: dividing by 1 changes no bit)
+            if not _unit(s_in):
                 with np.errstate(divide="ignore", invalid="ignore"):  # no gain: masked
                     result = result / s_in
             target = flat_out[k][region]
@@ -506,8 +505,7 @@ def correct_frames(data, operation, model, *, mask=None, region=None, scale=1.0,
             infos.append(info)
             if after_frame is not None:
                 after_frame(k + 1)
-        if groups == 1:
-            settings["spare"]["in"] = measured[0]
+        settings["spare"].update({"in": measured[0]} if groups == 1 else {})
     record.warn(label)
     return out, infos
 
@@ -515,11 +513,10 @@ def correct_frames(data, operation, model, *, mask=None, region=None, scale=1.0,
 def _frame_in(frame, s, s_in, base, record, where, offset, operation, flagged, into=None):
     """One frame's measured charge (electrons) and its mask (None when none);
     written into ``into`` (a float64 array the caller has done with) when it fits."""
-    if into is not None and into.shape == frame.shape:
-        measured = into
+    fits = into is not None and into.shape == frame.shape
+    measured = into if fits else frame.astype(np.float64)
+    if fits:
         np.copyto(measured, frame, casting="unsafe")
-    else:
-        measured = frame.astype(np.float64)
     if not _unit(s_in):
         measured *= s_in
     m = untrusted([], 0, measured.shape, flagged, gain=s_in if s.ndim == 2 else None)
@@ -534,22 +531,16 @@ def _frame_in(frame, s, s_in, base, record, where, offset, operation, flagged, i
 
 
 def _copy_outside(out, data, region):
-    """``out = data`` outside ``region`` (rows above and below it, columns
-    left and right of it), in four slabs: inside it every pixel is written by
-    the frame loop (its result, or the input for a masked pixel)."""
-    ys, xs = region
-    ny, nx = data.shape[-2:]
-    y0, y1 = ys.start or 0, ny if ys.stop is None else ys.stop
-    x0, x1 = xs.start or 0, nx if xs.stop is None else xs.stop
-    for part in ((slice(0, y0), slice(None)), (slice(y1, ny), slice(None)),
-                 (slice(y0, y1), slice(0, x0)), (slice(y0, y1), slice(x1, nx))):
+    """``out = data`` outside ``region``, in four slabs (the frame loop writes
+    every pixel inside it: its result, or the input for a masked pixel)."""
+    (y0, y1, _), (x0, x1, _) = (r.indices(n) for r, n in zip(region, data.shape[-2:]))
+    for part in ((slice(0, y0), slice(None)), (slice(y1, None), slice(None)),
+                 (slice(y0, y1), slice(0, x0)), (slice(y0, y1), slice(x1, None))):
         out[(Ellipsis,) + part] = data[(Ellipsis,) + part]
 
 
 def _unit(scale):
-    """Whether the electrons-per-unit factor is the number 1 (a frame in
-    electrons): multiplying and dividing by it are then skipped, which saves a
-    pass over the frame each and changes no bit."""
+    """Whether electrons per unit is the number 1: a pass saved, no bit changed."""
     return scale.ndim == 0 and float(scale) == 1.0
 
 
@@ -589,14 +580,11 @@ def _propagate(noisy, k, region, solution, measured, mask, model, s_in, base):
 
 def _run(charge, mask, where, operation, model, max_iter, tol, arch, precision, callback,
          spare=None):
-    """One frame in electrons (or a ramp's groups: warm-started) through the
-    decoupler or the forward model. ``spare`` (a dict, or None): the previous
-    frame's decoupled array, which the caller has done with, is written again
-    (``out=``) instead of a new one (whose first touch of every page costs as
-    much as the copy into it), and this frame's is left there."""
+    """One frame in electrons (or a ramp's groups: warm-started) through the decoupler or
+    the forward model; ``spare`` (dict or None): the previous frame's decoupled array,
+    done with, is written again (a new one pays a page fault per page), this one kept."""
     out = None if spare is None else spare.pop("frame", None)
-    if out is not None and out.shape != np.shape(charge):
-        out = None
+    out = out if out is not None and out.shape == np.shape(charge) else None
     with warnings.catch_warnings(), named(where):
         warnings.simplefilter("ignore", ConvergenceWarning)  # reported per frame by callers
         if operation == "decouple":
