@@ -103,10 +103,10 @@ def make_exp(real_is_f64, vector=False):
     return exp
 
 
-def make_alpha(law_kind, precision, fast_exp=True, flat_table=False):
+def make_alpha(law_kind, precision, fast_exp=True, flat_table=False, lanes=0):
     """The Taichi device function ``alpha(s, n, p, table)`` of a law kind: the
-    one device-side evaluation of the coupling law, used by both kernel
-    layouts and timed by the benchmark's floor measurement.
+    one device-side evaluation of the coupling law, used by every kernel
+    layout and timed by the benchmark's floor measurement.
 
     ``p`` holds :meth:`ParametricLaw.kernel_params` (amplitudes, reciprocal
     scales, floor) or the table's grid for a :class:`TabulatedLaw`
@@ -119,39 +119,23 @@ def make_alpha(law_kind, precision, fast_exp=True, flat_table=False):
     ``flat_table`` the table comes as a 1-D row-major array and its four
     corners are read at ``i * n + j`` (Taichi's CPU code would reload a 2-D
     array's shape at each read).
+
+    ``lanes``: ``s`` and ``n`` are Taichi vectors of that many pixels (the
+    ``lanes`` layout, :mod:`ipc_taichi._lanes`; the table flat): the same
+    formula lane by lane (``parametric`` and ``bilinear`` are shared), written
+    without what such vectors do not take (unary minus, ``abs``, casts:
+    ``0 - x`` and selects, for scalars too, with the same values to the bit;
+    the table's corners read lane by lane).
     """
     import taichi as ti
 
     real = ti.f64 if precision == "f64" else ti.f32
     table_law = law_kind == "table"
     constant_law = law_kind == "constant"
-    exp = make_exp(precision == "f64") if fast_exp else ti.exp
+    exp = make_exp(precision == "f64", vector=lanes > 0) if fast_exp else ti.exp
+    flat_table = flat_table or lanes > 0
 
-    @ti.func
-    def clamp(u, last):
-        """``u`` clamped to ``[0, last]`` by compares and selects (``u`` is never NaN)."""
-        c = ti.select(u > 0.0, u, 0.0)
-        return ti.select(c < last, c, last)
-
-    @ti.func
-    def corners(table: ti.template(), i, j, n):
-        """The table at (i, j), (i, j + 1), (i + 1, j), (i + 1, j + 1); ``n`` columns."""
-        t00 = ti.cast(0.0, real)
-        t01 = ti.cast(0.0, real)
-        t10 = ti.cast(0.0, real)
-        t11 = ti.cast(0.0, real)
-        if ti.static(flat_table):
-            k = i * n + j
-            t00 = table[k]
-            t01 = table[k + 1]
-            t10 = table[k + n]
-            t11 = table[k + n + 1]
-        else:
-            t00 = table[i, j]
-            t01 = table[i, j + 1]
-            t10 = table[i + 1, j]
-            t11 = table[i + 1, j + 1]
-        return ti.Vector([t00, t01, t10, t11])
+    clamp, corner, bilinear, parametric = _law_parts(real, exp, flat_table)
 
     @ti.func
     def alpha(s, n, p: ti.template(), table: ti.template()):
@@ -165,14 +149,74 @@ def make_alpha(law_kind, precision, fast_exp=True, flat_table=False):
             top = ti.cast(last, ti.i32) - 1
             i0 = ti.min(ti.cast(u, ti.i32), top)
             j0 = ti.min(ti.cast(v, ti.i32), top)
-            fu = u - i0
-            fv = v - j0
-            t = corners(table, i0, j0, top + 2)
-            a = ((1 - fu) * ((1 - fv) * t[0] + fv * t[1])
-                 + fu * ((1 - fv) * t[2] + fv * t[3]))
+            a = bilinear(u - i0, v - j0, corner(table, i0, j0, top + 2),
+                         corner(table, i0, j0 + 1, top + 2), corner(table, i0 + 1, j0, top + 2),
+                         corner(table, i0 + 1, j0 + 1, top + 2))
         else:
-            a = (p[0] * exp(-ti.abs(s - n) * p[1])
-                 + p[2] * exp(-ti.sqrt(s * s + n * n) * p[3]) + p[4])
+            a = parametric(s, n, p)
         return a
 
-    return alpha
+    @ti.func
+    def lane_alpha(s, n, p: ti.template(), table: ti.template()):
+        """:func:`alpha` of two vectors of ``lanes`` signals (the table's
+        corners read lane by lane: no vector casts or gathers here)."""
+        a = s * 0.0 + p[4]
+        if ti.static(table_law):
+            last = p[2]
+            u = clamp((s - p[0]) * p[1], last)
+            v = clamp((n - p[0]) * p[1], last)
+            top = ti.cast(last, ti.i32) - 1
+            m = top + 2
+            i0 = [ti.min(ti.cast(u[q], ti.i32), top) for q in ti.static(range(lanes))]
+            j0 = [ti.min(ti.cast(v[q], ti.i32), top) for q in ti.static(range(lanes))]
+            fu = u - ti.Vector([ti.cast(i0[q], real) for q in ti.static(range(lanes))], dt=real)
+            fv = v - ti.Vector([ti.cast(j0[q], real) for q in ti.static(range(lanes))], dt=real)
+            t00 = ti.Vector([corner(table, i0[q], j0[q], m) for q in ti.static(range(lanes))],
+                            dt=real)
+            t01 = ti.Vector([corner(table, i0[q], j0[q] + 1, m)
+                             for q in ti.static(range(lanes))], dt=real)
+            t10 = ti.Vector([corner(table, i0[q] + 1, j0[q], m)
+                             for q in ti.static(range(lanes))], dt=real)
+            t11 = ti.Vector([corner(table, i0[q] + 1, j0[q] + 1, m)
+                             for q in ti.static(range(lanes))], dt=real)
+            a = bilinear(fu, fv, t00, t01, t10, t11)
+        elif ti.static(not constant_law):
+            a = parametric(s, n, p)
+        return a
+
+    return lane_alpha if lanes else alpha
+
+
+def _law_parts(real, exp, flat_table):
+    """The pieces both forms of :func:`make_alpha` are written with:
+    ``(clamp, corner, bilinear, parametric)``."""
+    import taichi as ti
+
+    @ti.func
+    def clamp(u, last):
+        """``u`` clamped to ``[0, last]`` by compares and selects (``u`` is never NaN)."""
+        c = ti.select(u > 0.0, u, 0.0)
+        return ti.select(c < last, c, last)
+
+    @ti.func
+    def corner(table: ti.template(), i, j, n):
+        """The table at (i, j) (``n`` columns)."""
+        t = ti.cast(0.0, real)
+        if ti.static(flat_table):
+            t = table[i * n + j]
+        else:
+            t = table[i, j]
+        return t
+
+    @ti.func
+    def bilinear(fu, fv, t00, t01, t10, t11):
+        return (1 - fu) * ((1 - fv) * t00 + fv * t01) + fu * ((1 - fv) * t10 + fv * t11)
+
+    @ti.func
+    def parametric(s, n, p: ti.template()):
+        """The formula of :meth:`ipc_taichi.laws.ParametricLaw.alpha`."""
+        d = s - n
+        return (p[0] * exp((0.0 - ti.select(d > 0.0, d, 0.0 - d)) * p[1])
+                + p[2] * exp((0.0 - ti.sqrt(s * s + n * n)) * p[3]) + p[4])
+
+    return clamp, corner, bilinear, parametric

@@ -35,22 +35,21 @@ vector beside it. Each pair's alpha is evaluated once: a pair along the row
 later (shifted by ``dx`` lanes). Lanes in the border columns are computed
 with the rest and written as zero, which keeps the border what it was; a
 read beyond either end of the array is clamped to its end (it feeds border
-lanes only). The law's exponentials are those of the other layouts,
-:func:`ipc_taichi._alpha.make_exp` with ``vector=True`` (``2**n`` as a
-product of powers of two chosen by compares: vectors have no bit casts here);
-the table law reads its four corners lane by lane.
+lanes only). The law is the other layouts' own,
+:func:`ipc_taichi._alpha.make_alpha` with ``lanes=L`` (its exponential
+builds ``2**n`` as a product of powers of two chosen by compares: vectors
+have no bit casts here; the table law reads its four corners lane by lane).
 
 Things this compilation mode does not take on a vector (they crash at compile
 time): unary minus, ``ti.abs``, ``ti.exp``, casts and bit casts; the code
 below uses ``0 - x``, compares and selects instead.
 """
 
-__all__ = ["LANES", "ALIGN", "lane_count", "padded_width", "aligned_zeros",
-           "make_vector_alpha", "lanes_kernel"]
-
 import numpy as np
 
-from ._alpha import make_exp
+from ._alpha import make_alpha
+
+__all__ = ["LANES", "ALIGN", "lane_count", "padded_width", "aligned_zeros", "lanes_kernel"]
 
 LANES = {"f64": 8, "f32": 16}
 """Pixels per vector: 64 bytes (one AVX-512 register, two AVX2 ones)."""
@@ -80,56 +79,6 @@ def aligned_zeros(shape, dtype, fill=0):
     return arr
 
 
-def make_vector_alpha(law_kind, precision):
-    """``alpha(s, n, law, table)`` of two vectors of signals: the law of
-    :func:`ipc_taichi._alpha.make_alpha`, lane by lane (``law``: the 5 kernel
-    parameters, ``table``: the table law's grid, flat, row-major)."""
-    import taichi as ti
-
-    lanes = LANES[precision]
-    real = ti.f64 if precision == "f64" else ti.f32
-    exp = make_exp(precision == "f64", vector=True)
-
-    @ti.func
-    def clamp(u, last):
-        c = ti.select(u > 0.0, u, 0.0)
-        return ti.select(c < last, c, last)
-
-    @ti.func
-    def bilinear(u, v, last, table: ti.template()):
-        """The table at fractional grid positions ``u``, ``v`` (clamped):
-        cell corners read lane by lane (no vector gather or cast here)."""
-        top = ti.cast(last, ti.i32) - 1
-        n = top + 2
-        i0 = [ti.min(ti.cast(u[q], ti.i32), top) for q in ti.static(range(lanes))]
-        j0 = [ti.min(ti.cast(v[q], ti.i32), top) for q in ti.static(range(lanes))]
-        k = [i0[q] * n + j0[q] for q in ti.static(range(lanes))]
-        fu = u - ti.Vector([ti.cast(i0[q], real) for q in ti.static(range(lanes))], dt=real)
-        fv = v - ti.Vector([ti.cast(j0[q], real) for q in ti.static(range(lanes))], dt=real)
-        t00 = ti.Vector([table[k[q]] for q in ti.static(range(lanes))], dt=real)
-        t01 = ti.Vector([table[k[q] + 1] for q in ti.static(range(lanes))], dt=real)
-        t10 = ti.Vector([table[k[q] + n] for q in ti.static(range(lanes))], dt=real)
-        t11 = ti.Vector([table[k[q] + n + 1] for q in ti.static(range(lanes))], dt=real)
-        return ((1.0 - fu) * ((1.0 - fv) * t00 + fv * t01)
-                + fu * ((1.0 - fv) * t10 + fv * t11))
-
-    @ti.func
-    def alpha(s, n, law: ti.template(), table: ti.template()):
-        a = s * 0.0 + law[4]
-        if ti.static(law_kind == "table"):
-            last = law[2]
-            a = bilinear(clamp((s - law[0]) * law[1], last), clamp((n - law[0]) * law[1], last),
-                         last, table)
-        elif ti.static(law_kind == "parametric"):
-            d = s - n
-            ad = ti.select(d > 0.0, d, 0.0 - d)
-            a = (law[0] * exp((0.0 - ad) * law[1])
-                 + law[2] * exp((0.0 - ti.sqrt(s * s + n * n)) * law[3]) + law[4])
-        return a
-
-    return alpha
-
-
 def _pair_functions(plan):
     """``(shifted, pair, ring_row, combined_flow)``: a vector's neighbours
     ``dx`` columns away, the alphas of its pairs, where a ring row starts, and
@@ -143,7 +92,7 @@ def _pair_functions(plan):
     slots, depth = max(1, len(vertical)), config.ring_depth
     constant, gated = config.law_kind == "constant", config.uses_ok
     law_at, combined_at, total_at = plan.law_at, plan.combined_at, plan.total_at
-    alpha = make_vector_alpha(config.law_kind, config.precision)
+    alpha = make_alpha(config.law_kind, config.precision, lanes=lanes)
 
     @ti.func
     def shifted(arr: ti.template(), cb, dx: ti.template(), last):

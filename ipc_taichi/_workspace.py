@@ -30,7 +30,6 @@ def interior(padded, reach, shape):
     return padded[reach:reach + shape[0], reach:reach + shape[1]]
 
 
-
 class Workspace:
     """The working arrays for frames of one shape, allocated once and reused.
 
@@ -40,7 +39,10 @@ class Workspace:
     of the stopping-rule maxima, the sweep's ring rows, and on the device path
     the unpadded ``io`` frame and ``mask`` bytes. On the CPU they are NumPy
     arrays (Taichi reads them in place); on CUDA Taichi ndarrays in device
-    memory.
+    memory. The ``lanes`` layout's arrays (:mod:`ipc_taichi._lanes`) are
+    64-byte aligned, their rows rounded up to whole vectors; it adds
+    ``measured`` (the padded measured frame its step reads) and holds ``ok``
+    as reals, made only when a step gates alphas (:meth:`ok_array`).
     """
 
     def __init__(self, info, shape, config, device_buffers):
