@@ -1,4 +1,5 @@
-"""The step kernels on flat host arrays (``KernelConfig.flat``: 1-D, indexed
+"""The step kernels on host arrays (the CPU default, ``lanes``, since issue 28: flat
+``KernelConfig.flat`` arrays before it, 1-D, indexed
 ``row * width + column``, the table read the same way) against the same kernels
 on 2-D Taichi ndarrays (the device path, ``engine.device_buffers``):
 bit for bit, on every recorded case of ``tests/kernel_reference.py`` (nearest
