@@ -46,7 +46,7 @@ from ._device import (
 from ._frames import finite_sum
 from ._inputs import Frames, as_result, as_stack
 from ._kernels import KernelConfig, get_frame_kernels, get_step_kernel, kernel_law_kind
-from ._lanes import lane_count
+from ._lanes import LANES
 from ._warm import WarmStart
 from ._workspace import STRIP_ROWS, Workspace, interior
 from .errors import IPCInputError
@@ -299,7 +299,7 @@ class _Run:
         kernel = get_step_kernel(config)
         ok, table, ring = ws.ok, self.table, ws.ring
         if config.layout == "lanes":  # vectors of L pixels; the measured frame padded
-            lanes = lane_count(config.precision)
+            lanes = LANES[config.precision]
             ok = ws.ok_array() if config.uses_ok else ws.no_ok
             src, base, dst, ok, ring = (_flat(a).reshape(-1, lanes)
                                         for a in (src, ws.measured, dst, ok, ring))

@@ -49,17 +49,13 @@ import numpy as np
 
 from ._alpha import make_alpha
 
-__all__ = ["LANES", "ALIGN", "lane_count", "padded_width", "aligned_zeros", "lanes_kernel"]
+__all__ = ["LANES", "ALIGN", "padded_width", "aligned_zeros", "lanes_kernel"]
 
 LANES = {"f64": 8, "f32": 16}
 """Pixels per vector: 64 bytes (one AVX-512 register, two AVX2 ones)."""
 
 ALIGN = 64
 """Bytes every ``lanes`` array starts on (a vector's natural alignment)."""
-
-
-def lane_count(precision):
-    return LANES[precision]
 
 
 def padded_width(width, reach, precision):
