@@ -304,16 +304,17 @@ def _load_table(path):
     return TabulatedLaw(float(signal[0]), float(step.mean()), alpha, name=f"table:{path}")
 
 
-def check_convergence(law, geometry):
+def check_convergence(law, geometry, scale=1.0):
     """Raise :class:`LawError` if ``law`` on ``geometry`` is too strong to decouple.
 
     The Jacobi update is ``S_q = M - L(S_{q-1})``. Linearised, each row of ``L``
     has absolute sum at most ``2 * max_alpha * W`` with ``W`` the total
     outgoing weight of the geometry (Gershgorin), so the iteration contracts
     when that is below 1. For the nearest-neighbour constant law this is the
-    exact condition ``alpha < 1/8``.
+    exact condition ``alpha < 1/8``. ``scale`` is the largest factor a map
+    multiplies alpha by (:mod:`ipc_taichi.bondmap`).
     """
-    bound = 2.0 * law.max_alpha() * geometry.total_weight()
+    bound = 2.0 * law.max_alpha() * geometry.total_weight() * float(scale)
     if not bound < 1.0:
         raise LawError(
             f"law {law.name!r} with geometry {geometry.describe()} is too strong for the "

@@ -27,8 +27,12 @@ document, versioned, readable by eye and by any language::
       "law_band": {...},          # the law's 1-sigma band along (S, 0) and (S, S)
       "brighter_fatter": {"kernel": [[...] x 5], "kernel_error": ..., "units": "1/electron"},
       "classical_nonlinearity": {"beta": ..., "error": ..., "form": "M = Q - beta Q^2"},
-      "gain": {...}               # the gain given and the gain the flat ramps measured
-    }
+      "gain": {...},              # the gain given and the gain the flat ramps measured
+      # version 3: IPC that varies across the detector (optional; see ipc_taichi.bondmap)
+      "bond_map": {"offsets": [[dy, dx], ...], "shape": [ny, nx],
+                   "superpixel": [sy, sx], "coarse": [[[...]]]}     # super-pixel values, or
+               or {"offsets": ..., "shape": ..., "file": "NAME.npz"} # full resolution, beside
+    }                                                               # the model file
 
 The law is in electrons of collected charge (``units`` must say so): a model
 measured in DN is converted before it is written. ``geometry`` multiplies
@@ -37,7 +41,9 @@ and ``fit`` are carried, never interpreted, by the readers. The sections
 (:data:`SECTIONS`) describe the detector beyond IPC for the forward
 simulators (``simulate-lab``, ``discover``'s starting model); the model
 itself, and so ``decouple``, is IPC only: it never reads them. Version 1
-files (no sections) are read unchanged.
+files (no sections) are read unchanged. A ``bond_map`` (version 3) multiplies
+the law per neighbour pair (:mod:`ipc_taichi.bondmap`); without one the model is
+uniform across the detector, as every version-1 and -2 file is.
 
 :meth:`CouplingModel.save` writes to a temporary file in the target folder
 and renames it into place, so a crash never leaves half a model.
@@ -49,8 +55,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .bondmap import BondMap
 from .errors import IPCInputError, LawError
-from .fitsio import write_json
+from .fitsio import atomic_output, write_json
 from .geometry import Geometry
 from .laws import ParametricLaw, TabulatedLaw, check_convergence, get_law
 
@@ -58,7 +65,7 @@ __all__ = ["CouplingModel", "EDGES", "DEFAULT_LAW", "DEFAULT_EDGE", "MODEL_FORMA
            "MODEL_VERSION", "SECTIONS"]
 
 MODEL_FORMAT = "ipc_taichi.coupling_model"
-MODEL_VERSION = 2
+MODEL_VERSION = 3
 SECTIONS = ("law_band", "brighter_fatter", "classical_nonlinearity", "gain")
 """Named sections a model file may carry beside the law (version 2)."""
 _PARAMETRIC = ("amp_diff", "scale_diff", "amp_level", "scale_level", "floor")
@@ -89,14 +96,18 @@ class CouplingModel:
         Neighbour offsets and the weights that multiply alpha.
     edge : {"zero", "isolated"}
         What lies beyond the frame (see :data:`EDGES`).
+    bonds : BondMap or None
+        The coupling of each neighbour pair relative to the law
+        (:mod:`ipc_taichi.bondmap`); ``None``: uniform across the detector.
     """
 
     law: object
     geometry: Geometry
     edge: str = DEFAULT_EDGE
+    bonds: BondMap = None
 
     @classmethod
-    def resolve(cls, law=None, geometry=None, edge=None, *, model=None):
+    def resolve(cls, law=None, geometry=None, edge=None, *, model=None, bonds=None):
         """The validated model of user-facing values: the one way to build one.
 
         Every public function that takes ``law``/``geometry``/``edge`` or
@@ -116,6 +127,9 @@ class CouplingModel:
         model : CouplingModel, str or path-like, optional
             A resolved model, or the path of a model file (:meth:`load`); then
             ``law``, ``geometry`` and ``edge`` must be ``None``.
+        bonds : BondMap, optional
+            A map of the coupling across the detector (with law/geometry/edge,
+            not with ``model``); a map of all ones is dropped (the uniform model).
 
         Returns
         -------
@@ -136,8 +150,8 @@ class CouplingModel:
                 raise IPCInputError("give the coupling model once (law= or model=), not both")
             law, model = None, law
         if model is not None:
-            given = [name for name, value in (("law", law), ("geometry", geometry), ("edge", edge))
-                     if value is not None]
+            given = [name for name, value in (("law", law), ("geometry", geometry), ("edge", edge),
+                                              ("bonds", bonds)) if value is not None]
             if given:
                 raise IPCInputError(f"give either model= or law/geometry/edge, not both "
                                     f"(got model= and {', '.join(given)}=)")
@@ -155,8 +169,14 @@ class CouplingModel:
         edge = DEFAULT_EDGE if edge is None else edge
         if edge not in EDGES:
             raise IPCInputError(f"edge must be one of {', '.join(EDGES)}, got {edge!r}")
-        check_convergence(law, geometry)
-        return cls(law, geometry, edge)
+        if bonds is not None:
+            if not isinstance(bonds, BondMap):
+                raise IPCInputError(f"bonds must be a BondMap, got {type(bonds).__name__}")
+            bonds.check(geometry)
+            if bonds.is_uniform():
+                bonds = None
+        check_convergence(law, geometry, 1.0 if bonds is None else bonds.max_factor())
+        return cls(law, geometry, edge, bonds)
 
     @property
     def reach(self):
@@ -164,14 +184,25 @@ class CouplingModel:
         return self.geometry.reach
 
     def describe(self):
-        """One line: ``law; geometry; edge``."""
-        return f"{self.law.describe()}; {self.geometry.describe()}; edge {self.edge}"
+        """One line: ``law; geometry; edge`` (and the map's size, if any)."""
+        text = f"{self.law.describe()}; {self.geometry.describe()}; edge {self.edge}"
+        if self.bonds is not None:
+            ny, nx = self.bonds.shape
+            lo, hi = float(self.bonds.values.min()), float(self.bonds.values.max())
+            text += f"; bond map {ny}x{nx} ({lo:.3g}..{hi:.3g})"
+        return text
+
+    def uniform(self):
+        """The same model without its map."""
+        return CouplingModel(self.law, self.geometry, self.edge)
 
     # ---- the model file --------------------------------------------------------------
 
-    def to_dict(self, provenance=None, fit=None, sections=None):
+    def to_dict(self, provenance=None, fit=None, sections=None, map_file=None):
         """The model file's content (see the module docstring); ``sections``
-        maps names of :data:`SECTIONS` to JSON objects."""
+        maps names of :data:`SECTIONS` to JSON objects. A full-resolution map
+        is named by ``map_file`` (the file :meth:`save` writes beside the model);
+        a super-pixel map is written inline."""
         unknown = sorted(set(sections or ()) - set(SECTIONS))
         if unknown:
             raise IPCInputError(f"unknown model-file section(s) {', '.join(unknown)} "
@@ -195,12 +226,14 @@ class CouplingModel:
             "provenance": dict(provenance or {}),
             "fit": dict(fit or {}),
             **{name: value for name, value in (sections or {}).items() if value is not None},
+            **({} if self.bonds is None else {"bond_map": _map_doc(self.bonds, map_file)}),
         }
 
     @classmethod
-    def from_dict(cls, doc, source="model file"):
+    def from_dict(cls, doc, source="model file", folder="."):
         """A validated model from a model file's content; ``source`` names the
-        file in errors (:class:`IPCInputError`, one line)."""
+        file in errors (:class:`IPCInputError`, one line); ``folder`` is where a
+        full-resolution map's file is looked for."""
         def bad(why):
             return IPCInputError(f"{source}: {why}")
 
@@ -229,7 +262,9 @@ class CouplingModel:
                                    np.asarray(law_doc["table"], dtype=np.float64),
                                    name=str(law_doc.get("name", "table")))
             geometry = Geometry({(int(dy), int(dx)): float(w) for dy, dx, w in doc["geometry"]})
-            return cls.resolve(law, geometry, doc.get("edge", DEFAULT_EDGE))
+            bonds = (None if doc.get("bond_map") is None
+                     else _map_of(doc["bond_map"], geometry, folder))
+            return cls.resolve(law, geometry, doc.get("edge", DEFAULT_EDGE), bonds=bonds)
         except (KeyError, TypeError, ValueError) as exc:
             raise bad(f"{type(exc).__name__}: {exc}" if not isinstance(exc, ValueError)
                       else str(exc)) from None
@@ -254,7 +289,7 @@ class CouplingModel:
                                 f"({exc.strerror or exc})") from None
         except (json.JSONDecodeError, UnicodeDecodeError) as exc:
             raise IPCInputError(f"{path}: not a JSON coupling-model file ({exc})") from None
-        model = cls.from_dict(doc, source=path)
+        model = cls.from_dict(doc, source=path, folder=os.path.dirname(path) or ".")
         return (model, doc) if with_document else model
 
     def save(self, path, provenance=None, fit=None, overwrite=False, sections=None):
@@ -268,5 +303,42 @@ class CouplingModel:
         IPCInputError
             ``path`` exists and ``overwrite`` is false, or cannot be written.
         """
-        return write_json(path, self.to_dict(provenance, fit, sections), overwrite)
+        map_file = None
+        if self.bonds is not None and self.bonds.coarse is None:
+            map_file = os.path.splitext(os.path.basename(os.fspath(path)))[0] + ".bonds.npz"
+            target = os.path.join(os.path.dirname(os.fspath(path)) or ".", map_file)
+            with atomic_output(target, overwrite) as tmp:
+                with open(tmp, "wb") as f:
+                    np.savez(f, offsets=np.array(self.bonds.offsets), values=self.bonds.values)
+        return write_json(path, self.to_dict(provenance, fit, sections, map_file), overwrite)
+
+
+def _map_doc(bonds, map_file):
+    """The model file's ``bond_map`` object (module docstring)."""
+    doc = {"offsets": [list(u) for u in bonds.offsets], "shape": list(bonds.shape)}
+    if bonds.coarse is not None:
+        return {**doc, "superpixel": list(bonds.superpixel), "coarse": bonds.coarse.tolist()}
+    if map_file is None:
+        raise IPCInputError("a full-resolution bond map is written beside its model file: "
+                            "use CouplingModel.save")
+    return {**doc, "file": map_file}
+
+
+def _map_of(doc, geometry, folder):
+    """The :class:`BondMap` a model file's ``bond_map`` object describes."""
+    shape = tuple(int(n) for n in doc["shape"])
+    offsets = tuple((int(dy), int(dx)) for dy, dx in doc["offsets"])
+    if "coarse" in doc:
+        bonds = BondMap.superpixels(geometry, np.asarray(doc["coarse"], dtype=np.float64),
+                                    doc["superpixel"], shape)
+    else:
+        path = os.path.join(folder, os.path.basename(str(doc["file"])))
+        try:
+            with np.load(path) as z:
+                bonds = BondMap(tuple(map(tuple, z["offsets"].tolist())), z["values"])
+        except (OSError, KeyError, ValueError) as exc:
+            raise IPCInputError(f"cannot read its bond map {path} ({exc})") from None
+    if bonds.offsets != offsets or tuple(bonds.shape) != shape:
+        raise IPCInputError("its bond map does not match the offsets/shape it states")
+    return bonds
 

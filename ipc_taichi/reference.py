@@ -35,6 +35,7 @@ def flow_reference(signal, law=None, geometry=None, edge=None, *, model=None):
 def _flow(signal, model):
     law, geometry, edge = model.law, model.geometry, model.edge
     s = np.asarray(signal, dtype=np.float64)
+    factors = _bond_factors(model, s.shape)
     valid = np.isfinite(s)
     r = geometry.reach
     ny, nx = s.shape
@@ -50,11 +51,30 @@ def _flow(signal, model):
         neighbour = np.roll(padded, (-dy, -dx), axis=(0, 1))  # neighbour[p] = S[p + d]
         lands = np.roll(target_ok, (-dy, -dx), axis=(0, 1))
         transfer = np.where(source_ok & lands, w * law.alpha(padded, neighbour) * padded, 0.0)
+        if factors is not None:
+            transfer *= factors[(dy, dx)]
         gain -= transfer
         gain += np.roll(transfer, (dy, dx), axis=(0, 1))  # arrives at p + d
     out = gain[r:r + ny, r:r + nx]
     out[~valid] = np.nan
     return out
+
+
+def _bond_factors(model, shape):
+    """For each directed offset ``d``, the factor of the bond ``p -- p+d`` at
+    every padded position ``p`` (``None`` for a uniform model): the half-stencil
+    array for ``d = u``, the same array moved by ``u`` for ``d = -u`` (the bond
+    ``p -- p-u`` is stored at ``p-u``)."""
+    bonds = model.bonds
+    if bonds is None:
+        return None
+    bonds.check(model.geometry, shape)
+    padded = bonds.padded(model.geometry.reach)
+    factors = {}
+    for k, (dy, dx) in enumerate(bonds.offsets):
+        factors[(dy, dx)] = padded[k]
+        factors[(-dy, -dx)] = np.roll(padded[k], (dy, dx), axis=(0, 1))
+    return factors
 
 
 def couple_reference(signal, law=None, geometry=None, edge=None, *, model=None):

@@ -155,7 +155,7 @@ def test_sections_round_trip_and_decouple_says_it_removed_ipc_only(cpu, tmp_path
                 "classical_nonlinearity": {"beta": 1.5e-6, "form": "M = Q - beta Q^2"}}
     path = _anisotropic().save(tmp_path / "m.json", sections=sections)
     back, doc = CouplingModel.load(path, with_document=True)
-    assert doc["version"] == 2
+    assert doc["version"] == 3
     assert doc["brighter_fatter"]["kernel"][2][1] == pytest.approx(3.7e-7)
     assert doc["classical_nonlinearity"]["beta"] == pytest.approx(1.5e-6)
     with pytest.raises(IPCInputError, match="unknown model-file section"):
