@@ -175,6 +175,9 @@ class _Run:
     """One call: the model's kernels and arguments, the workspace, the frames."""
 
     def __init__(self, frames, model, info, layout, what):
+        if model.bonds is not None:  # until every layout reads the map: never silently uniform
+            raise IPCInputError("the Taichi kernels do not take a bond map yet: use "
+                                "ipc_taichi.reference.couple_reference / decouple_reference")
         self.frames = frames
         self.info = info
         offsets = tuple(u for u, _ in model.geometry.half_stencil())
