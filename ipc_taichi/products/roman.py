@@ -102,7 +102,8 @@ def process_asdf(input_path, output_path, operation="decouple", *, model=None, o
                                      scale=p.scale, out=out, max_iter=max_iter, tol=tol,
                                      arch=options.arch, precision=options.precision,
                                      label=label, unphysical=record,
-                                     progress=options.progress, ramp=p.ramp, noise=noise)
+                                     progress=options.progress, ramp=p.ramp, noise=noise,
+                                     pedestal=p.pedestal)
         dm.data = out
         for name, value in noise.items():  # propagated, each in its own dtype
             dm[name] = value.astype(came[name].dtype)

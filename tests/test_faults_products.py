@@ -1,0 +1,238 @@
+"""Every :class:`ProductOptions` field, through every reader, changes the output or is refused.
+
+The readers are the three that apply the product plan: FITS
+(:func:`~ipc_taichi.products.process_fits`), Roman ASDF
+(:func:`~ipc_taichi.products.process_asdf`) and the JWST Step's
+(:func:`~ipc_taichi.products.jwst_step.correct_model`). Each field is turned
+from its base value to another one on a small synthetic product where it
+applies (a rate; a ramp for ``warm_start``), and the run either changes
+what it should (the science data, the noise arrays, the output dtype, the
+progress reported, the existing output replaced) or refuses the option in
+one :class:`~ipc_taichi.errors.IPCInputError`. A reader that drops a field
+silently (as Roman and the Step dropped ``pedestal`` at a53f084) fails here;
+a field added to :class:`ProductOptions` without an entry in :data:`SPECS`
+fails :func:`test_every_field_has_a_spec`.
+"""
+
+import dataclasses
+
+import numpy as np
+import pytest
+from astropy.io import fits
+
+from ipc_taichi.errors import ArchUnavailableError, IPCInputError
+from ipc_taichi.gpus import cuda_present
+from ipc_taichi.model import CouplingModel
+from ipc_taichi.products import ProductOptions, process_asdf, process_fits
+from ipc_taichi.reference import couple_reference
+from tests.helpers import optional
+
+SHAPE = (24, 20)
+GAIN, EXPTIME = 2.0, 10.0
+DO_NOT_USE = 1
+FLAGGED, WILD = (5, 6), (12, 9)  # a flagged junk pixel; an unflagged unphysical one
+BASE = dict(gain=GAIN)
+MODEL = CouplingModel.resolve("donlon2018")
+# the inputs hold what the rules warn about (an unphysical pixel; max_iter=2)
+pytestmark = pytest.mark.filterwarnings("ignore::UserWarning")
+
+
+def _truth(rng):
+    return rng.uniform(2000, 60000, SHAPE)
+
+
+def _rate_arrays(seed=7):
+    """DN/s, a flagged junk pixel, an unphysical one (5e6 e-), err."""
+    rng = np.random.default_rng(seed)
+    rate = couple_reference(_truth(rng)) / (GAIN * EXPTIME)
+    rate[FLAGGED] = 1e4
+    rate[WILD] = 5e6 / (GAIN * EXPTIME)
+    dq = np.zeros(SHAPE, np.uint32)
+    dq[FLAGGED] = DO_NOT_USE
+    err = rng.uniform(0.5, 1.0, SHAPE)
+    return rate.astype(np.float32), dq, err.astype(np.float32)
+
+
+def _ramp_arrays(seed=8):
+    """(1, 3) groups in DN, charge growing."""
+    rng = np.random.default_rng(seed)
+    truth = _truth(rng) / 3
+    data = np.stack([couple_reference(truth * (g + 1)) / GAIN for g in range(3)])[np.newaxis]
+    return data.astype(np.float32)
+
+
+# --- the JWST datamodel (the Step's input, and the FITS file saved from it) ------------------
+
+
+def _jwst(kind):
+    dm = pytest.importorskip("stdatamodels.jwst.datamodels", reason=optional("stdatamodels"))
+    if kind == "rate":
+        rate, dq, err = _rate_arrays()
+        m = dm.ImageModel(SHAPE)
+        m.data, m.dq, m.err = rate, dq, err
+        m.meta.exposure.integration_time = EXPTIME
+        m.meta.bunit_data = "DN/s"
+    else:
+        data = _ramp_arrays()
+        m = dm.RampModel(data.shape)
+        m.data = data
+        m.pixeldq = np.zeros(SHAPE, np.uint32)
+        m.groupdq = np.zeros(data.shape, np.uint8)
+        m.meta.bunit_data = "DN"
+        m.meta.cal_step.superbias = "COMPLETE"
+    m.meta.telescope = "JWST"
+    m.meta.instrument.name = "NIRCAM"
+    m.meta.filename = f"jw_{kind}.fits"
+    return m
+
+
+def _fits_input(tmp_path, kind):
+    path = tmp_path / f"jw_{kind}.fits"
+    _jwst(kind).save(str(path))
+    if kind == "rate":  # a second science array: what --hdu chooses among
+        with fits.open(path, mode="append") as hdul:
+            sci2 = fits.ImageHDU(hdul["SCI"].data * np.float32(0.5), hdul["SCI"].header,
+                                 name="SCI")
+            sci2.header["EXTVER"] = 2
+            hdul.append(sci2)
+    return path
+
+
+def _roman_input(tmp_path, kind):
+    rdm = pytest.importorskip("roman_datamodels.datamodels", reason=optional("roman_datamodels"))
+    if kind == "rate":
+        rate, dq, err = _rate_arrays()
+        m = rdm.ImageModel.create_fake_data(shape=SHAPE)
+        m.data, m.dq = rate, dq
+        m.err = err.astype(m.err.dtype)
+        m.meta.exposure.effective_exposure_time = EXPTIME
+    else:
+        data = _ramp_arrays()[0]
+        m = rdm.RampModel.create_fake_data(shape=data.shape)
+        m.data = data
+        m.pixeldq = np.zeros(SHAPE, np.uint32)
+        m.groupdq = np.zeros(data.shape, np.uint8)
+    path = tmp_path / f"r_{kind}.asdf"
+    m.save(path)
+    return path
+
+
+# --- one run of a reader: what it changed ---------------------------------------------------
+
+
+@dataclasses.dataclass
+class Result:
+    data: list  # the science arrays written
+    err: np.ndarray = None
+    reported: int = 0
+
+
+def _run_fits(tmp_path, kind, options, out_name="out"):
+    src, out = tmp_path / f"jw_{kind}.fits", tmp_path / f"{out_name}.fits"
+    if not src.exists():
+        _fits_input(tmp_path, kind)
+    process_fits(src, out, model=MODEL, options=options)
+    with fits.open(out) as hdul:
+        data = [np.array(h.data) for h in hdul if h.name == "SCI"]
+        err = np.array(hdul["ERR"].data) if "ERR" in hdul else None
+    return Result(data, err)
+
+
+def _run_roman(tmp_path, kind, options, out_name="out"):
+    rdm = pytest.importorskip("roman_datamodels.datamodels", reason=optional("roman_datamodels"))
+    src, out = tmp_path / f"r_{kind}.asdf", tmp_path / f"{out_name}.asdf"
+    if not src.exists():
+        _roman_input(tmp_path, kind)
+    process_asdf(src, out, model=MODEL, options=options)
+    with rdm.open(out) as m:
+        err = np.array(m.err) if kind == "rate" else None
+        return Result([np.array(m.data)], err)
+
+
+def _run_step(tmp_path, kind, options, out_name=None):
+    pytest.importorskip("jwst", reason=optional("jwst"))
+    from ipc_taichi.products.jwst_step import correct_model
+
+    m = _jwst(kind)
+    correct_model(m, MODEL, options)
+    err = np.array(m.err) if kind == "rate" else None
+    return Result([np.array(m.data)], err)
+
+
+READERS = {"fits": _run_fits, "roman": _run_roman, "step": _run_step}
+
+# field -> (input kind, the value changed to, what it changes: one effect, or reader -> effect)
+# effects: data (the science arrays), err (the noise arrays), dtype (of the output),
+# reported (a progress reporter told), overwrite (an existing output replaced; refused
+# without), refused (one IPCInputError)
+SPECS = {
+    "hdu": ("rate", ("SCI", 1), {"fits": "data", "roman": "refused", "step": "refused"}),
+    "overwrite": ("rate", True, {"fits": "overwrite", "roman": "overwrite", "step": "refused"}),
+    "max_iter": ("rate", 2, "data"),
+    "tol": ("rate", 1e-3, "data"),
+    "arch": ("rate", "cuda", "arch"),
+    "precision": ("rate", "f32", "data"),
+    "tile": ("rate", 8, {"fits": "err", "roman": "refused", "step": "refused"}),
+    "progress": ("rate", "reporter", "reported"),
+    "dq_bits": ("rate", "none", "data"),
+    "refpix": ("rate", 2, "data"),
+    "gain": ("rate", 3.0, "data"),
+    "exptime": ("rate", 20.0, "data"),
+    "bunit": ("rate", "DN", "data"),
+    "output_dtype": ("rate", "float64", {"fits": "dtype", "roman": "refused",
+                                         "step": "refused"}),
+    "pedestal": ("rate", 20000.0, "data"),
+    "coadds": ("rate", 2, "data"),
+    "saturation": ("rate", 1000.0, "data"),
+    "unphysical": ("rate", "keep", "data"),
+    "model_chosen": ("rate", False, "refused"),
+    "edge": ("rate", "zero", "data"),
+    "noise": ("rate", "keep", "err"),
+    "warm_start": ("ramp", True, "data"),
+}
+
+
+def test_every_field_has_a_spec():
+    assert set(SPECS) == {f.name for f in dataclasses.fields(ProductOptions)}
+
+
+def _differs(a, b):
+    return any(x.shape != y.shape or not np.array_equal(x, y, equal_nan=True)
+               for x, y in zip(a, b))
+
+
+@pytest.mark.parametrize("reader", sorted(READERS))
+@pytest.mark.parametrize("field", sorted(SPECS))
+def test_every_option_changes_the_output_or_is_refused(tmp_path, reader, field, cpu):
+    kind, value, effect = SPECS[field]
+    effect = effect[reader] if isinstance(effect, dict) else effect
+    run = READERS[reader]
+    told = []
+    if value == "reporter":
+        value = lambda *a: told.append(a)  # noqa: E731
+    base = ProductOptions.from_kwargs(**BASE)
+    changed = base.replace(**{field: value})
+    if effect == "arch":  # no GPU here: asked for explicitly, refused; else it runs there
+        effect = "data" if cuda_present() else "refused"
+    if effect == "refused":
+        with pytest.raises((IPCInputError, ArchUnavailableError)):
+            run(tmp_path, kind, changed, out_name="changed")
+        return
+    before = run(tmp_path, kind, base, out_name="base")
+    if effect == "overwrite":  # the base output exists: refused without, replaced with
+        with pytest.raises(IPCInputError, match="exists"):
+            run(tmp_path, kind, base, out_name="base")
+        after = run(tmp_path, kind, changed, out_name="base")
+        assert not _differs(before.data, after.data)
+        return
+    after = run(tmp_path, kind, changed, out_name="changed")
+    if effect == "data":
+        assert _differs(before.data, after.data), f"{field} changed nothing ({reader})"
+    elif effect == "err":
+        assert not np.array_equal(before.err, after.err), f"{field}: err unchanged ({reader})"
+    elif effect == "dtype":
+        assert before.data[0].dtype != after.data[0].dtype
+    elif effect == "reported":
+        assert told, f"{field}: nothing reported ({reader})"
+    else:
+        raise AssertionError(effect)
