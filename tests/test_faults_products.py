@@ -236,3 +236,101 @@ def test_every_option_changes_the_output_or_is_refused(tmp_path, reader, field, 
         assert told, f"{field}: nothing reported ({reader})"
     else:
         raise AssertionError(effect)
+
+
+# --- issue 37's faults: a bad option or header value is refused in one line naming it -------
+
+
+def _plain(tmp_path, bunit="electron", gain=None, shape=(16, 16)):
+    rng = np.random.default_rng(3)
+    hdus = [fits.PrimaryHDU(), fits.ImageHDU(rng.uniform(1000, 30000, shape).astype(np.float32),
+                                             name="SCI")]
+    hdus[1].header["BUNIT"] = bunit
+    if gain is not None:
+        hdus[1].header["GAIN"] = gain
+    path = tmp_path / "in.fits"
+    fits.HDUList(hdus).writeto(path)
+    return path
+
+
+def _refused(r, tmp_path, *words):
+    assert r.returncode == 2, r.stderr
+    line = r.stderr.strip()
+    assert "\n" not in line and "Traceback" not in line, line
+    for w in words:
+        assert w in line, line
+    assert not (tmp_path / "out.fits").exists()
+    return line
+
+
+@pytest.mark.parametrize("args, named", [
+    (("--pedestal", "nan"), "--pedestal nan"),
+    (("--pedestal", "inf"), "--pedestal inf"),
+    (("--pedestal", "1e9"), "--pedestal 1e9"),
+    (("--coadds", "0"), "--coadds 0"),
+    (("--coadds", "-2"), "--coadds -2"),
+    (("--dq-bits", str(2 ** 32)), f"--dq-bits {2 ** 32}"),
+    (("--dq-bits", f"DO_NOT_USE,{2 ** 40}"), f"--dq-bits {2 ** 40}"),
+    (("--saturation=-5",), "--saturation -5"),
+    (("--saturation", "nan"), "--saturation nan"),
+])
+def test_a_meaningless_option_is_refused_naming_it(cli, tmp_path, args, named):
+    src = _plain(tmp_path)
+    r = cli("decouple", "--law", "donlon2018", src, tmp_path / "out.fits", *args)
+    _refused(r, tmp_path, named)
+
+
+def test_a_header_gain_that_is_not_a_number_is_blamed_on_the_keyword(cli, tmp_path):
+    src = _plain(tmp_path, bunit="DN", gain="abc")
+    r = cli("decouple", "--law", "donlon2018", src, tmp_path / "out.fits")
+    line = _refused(r, tmp_path, "header GAIN = 'abc'", "in.fits[SCI]")
+    assert "--gain abc" not in line
+
+
+def test_a_gain_image_with_no_usable_pixel_is_refused_naming_the_option(cli, tmp_path):
+    src = _plain(tmp_path, bunit="DN")
+    gain = tmp_path / "gain.fits"
+    fits.PrimaryHDU(np.zeros((16, 16), np.float32)).writeto(gain)
+    r = cli("decouple", "--law", "donlon2018", src, tmp_path / "out.fits", "--gain", gain)
+    _refused(r, tmp_path, "--gain", "no usable pixel")
+
+
+@pytest.mark.parametrize("lost", ["nan", "flagged"])
+def test_one_lost_frame_of_a_stack_is_left_and_said_the_others_corrected(cli, tmp_path, lost):
+    """An all-NaN frame of a stack, or an all-flagged integration of a rateints:
+    the good frames are decoupled (as one frame alone would be), the lost one
+    left as it came, said on the console and in the record."""
+    rng = np.random.default_rng(4)
+    cube = rng.uniform(1000, 30000, (3, 16, 16)).astype(np.float32)
+    dq = np.zeros(cube.shape, np.uint32)
+    if lost == "nan":
+        cube[1] = np.nan
+    else:
+        dq[1] = DO_NOT_USE
+    hdus = [fits.PrimaryHDU(), fits.ImageHDU(cube, name="SCI"), fits.ImageHDU(dq, name="DQ")]
+    hdus[1].header["BUNIT"] = "electron"
+    src, out = tmp_path / "ints.fits", tmp_path / "out.fits"
+    fits.HDUList(hdus).writeto(src)
+    r = cli("decouple", "--law", "donlon2018", src, out)
+    assert r.returncode == 0, r.stderr
+    assert "frame 1: no finite, unmasked pixel" in r.stderr and "left as it was" in r.stderr
+    one = tmp_path / "one.fits"
+    fits.HDUList([fits.PrimaryHDU(), fits.ImageHDU(cube[2], name="SCI")]).writeto(one)
+    fits.setval(one, "BUNIT", value="electron", ext=1)
+    assert cli("decouple", "--law", "donlon2018", one, tmp_path / "one_out.fits").returncode == 0
+    with fits.open(out) as h, fits.open(tmp_path / "one_out.fits") as alone:
+        got = h["SCI"].data
+        np.testing.assert_array_equal(got[1], cube[1])  # as it came (NaN == NaN)
+        np.testing.assert_array_equal(got[2], alone["SCI"].data)
+        assert not np.array_equal(got[0], cube[0])
+        history = "\n".join(h[0].header["HISTORY"])
+        assert "frame     1: left as it was" in history
+        assert h[0].header["S_IPC"] == "COMPLETE"
+
+
+def test_every_frame_lost_is_still_refused(cli, tmp_path):
+    cube = np.full((2, 8, 8), np.nan, np.float32)
+    src = tmp_path / "ints.fits"
+    fits.HDUList([fits.PrimaryHDU(), fits.ImageHDU(cube, name="SCI")]).writeto(src)
+    r = cli("decouple", "--law", "donlon2018", src, tmp_path / "out.fits")
+    _refused(r, tmp_path, "no finite, unmasked pixel")

@@ -185,6 +185,9 @@ class Provenance:
                              "contiguous image, every other sample as it came")
             if self.operation == "decouple":
                 for k, i in enumerate(self.infos[index]):
+                    if getattr(i, "lost", ""):  # products.checks.LostFrame
+                        lines.append(f"  frame {k:5d}: left as it was: {i.lost}")
+                        continue
                     it, conv = (i.iterations, i.converged) if i else (0, False)
                     last = i.max_delta[-1] if i and i.max_delta else 0.0
                     lines.append(f"  frame {k:5d}: {it:3d} iterations, "
@@ -207,6 +210,7 @@ class Provenance:
             infos = self.infos[index]
             out.update(removed=REMOVED, S_IPC=self.status(),
                        iterations=[int(i.iterations) for i in infos],
+                       lost_frames=[k for k, i in enumerate(infos) if getattr(i, "lost", "")],
                        converged=self._converged(infos), tol=float(self.tol),
                        max_iter=int(self.max_iter))
         return out
