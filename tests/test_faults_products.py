@@ -334,3 +334,42 @@ def test_every_frame_lost_is_still_refused(cli, tmp_path):
     fits.HDUList([fits.PrimaryHDU(), fits.ImageHDU(cube, name="SCI")]).writeto(src)
     r = cli("decouple", "--law", "donlon2018", src, tmp_path / "out.fits")
     _refused(r, tmp_path, "no finite, unmasked pixel")
+
+
+# --- special and compressed input files ------------------------------------------------------
+
+
+@pytest.mark.parametrize("special", ["/dev/zero", "fifo", "directory"])
+def test_a_special_file_is_refused_before_it_is_read(cli, tmp_path, special):
+    import os
+
+    if special == "fifo":  # what <(zcat f.fits.gz) gives: opening it would wait for a writer
+        special = tmp_path / "pipe"
+        os.mkfifo(special)
+    elif special == "directory":
+        special = tmp_path / "d.fits"
+        special.mkdir()
+    r = cli("decouple", "--law", "donlon2018", special, tmp_path / "out.fits")
+    _refused(r, tmp_path, str(special))
+
+
+@pytest.mark.parametrize("packing", ["bz2", "zip"])
+def test_bz2_and_zip_inputs_are_read_as_astropy_reads_them(cli, tmp_path, packing):
+    import bz2
+    import zipfile
+
+    from ipc_taichi.cli.frames import output_name
+
+    src = _plain(tmp_path)
+    packed = tmp_path / f"in.fits.{packing}"
+    if packing == "bz2":
+        packed.write_bytes(bz2.compress(src.read_bytes()))
+    else:
+        with zipfile.ZipFile(packed, "w") as z:
+            z.write(src, "in.fits")
+    assert cli("decouple", "--law", "donlon2018", src, tmp_path / "plain.fits").returncode == 0
+    r = cli("decouple", "--law", "donlon2018", packed, tmp_path / "out.fits")
+    assert r.returncode == 0, r.stderr
+    with fits.open(tmp_path / "out.fits") as a, fits.open(tmp_path / "plain.fits") as b:
+        np.testing.assert_array_equal(a["SCI"].data, b["SCI"].data)
+    assert output_name(str(packed), "d", "_x") == "d/in_x.fits"

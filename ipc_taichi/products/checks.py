@@ -8,6 +8,8 @@ and the plan (:mod:`ipc_taichi.products.plan`) the others.
 """
 
 import math
+import os
+import stat
 import warnings
 from dataclasses import dataclass
 
@@ -16,8 +18,27 @@ import numpy as np
 from ..decoupling import DecoupleInfo
 from ..errors import IPCInputError
 
-__all__ = ["check_numbers", "dq_word", "check_pedestal", "header_gain", "check_gain_image",
-           "FrameLost", "LostFrame", "LostFrames"]
+__all__ = ["check_input_file", "check_numbers", "dq_word", "check_pedestal", "header_gain",
+           "check_gain_image", "FrameLost", "LostFrame", "LostFrames"]
+
+
+def check_input_file(path):
+    """An input that is not a regular file refused before it is opened: a
+    directory, and a device or FIFO (``/dev/zero`` would be read without end, a
+    FIFO such as ``<(zcat f.fits.gz)`` cannot be read twice, and opening one
+    waits for a writer)."""
+    try:
+        mode = os.stat(path).st_mode
+    except FileNotFoundError:
+        raise IPCInputError(f"{path}: no such file") from None
+    except OSError as exc:
+        raise IPCInputError(f"{path}: cannot be read ({exc.strerror})") from None
+    if stat.S_ISDIR(mode):
+        raise IPCInputError(f"{path}: is a directory; give a product file")
+    if not stat.S_ISREG(mode):
+        kind = "a FIFO or pipe" if stat.S_ISFIFO(mode) else "a device or socket"
+        raise IPCInputError(f"{path}: {kind}, not a regular file; give the file itself "
+                            "(a .fits.gz is read as it is)")
 
 
 def check_numbers(options):

@@ -37,6 +37,7 @@ from ..fitsio import cannot_write, check_output_path
 from ..interrupts import check_stop
 from . import conventions as cv
 from . import missions
+from .checks import check_input_file
 from .options import ProductOptions, resolve_model
 from .plan import NOISE_ARRAYS, ArrayFacts, noise_of, plan_product
 
@@ -63,8 +64,7 @@ def process_asdf(input_path, output_path, operation="decouple", *, model=None, o
     model, options = resolve_model(model, options)
     max_iter, tol = iteration.check_arguments(options.max_iter, options.tol)
     check_output_path(output_path, options.overwrite)
-    if not os.path.exists(input_path):
-        raise IPCInputError(f"{input_path}: no such file")
+    check_input_file(input_path)
     if os.path.exists(output_path) and os.path.samefile(input_path, output_path):
         raise IPCInputError(f"{output_path}: is the input; write to another file")
     label = f"{input_path}[data]"
