@@ -373,3 +373,73 @@ def test_bz2_and_zip_inputs_are_read_as_astropy_reads_them(cli, tmp_path, packin
     with fits.open(tmp_path / "out.fits") as a, fits.open(tmp_path / "plain.fits") as b:
         np.testing.assert_array_equal(a["SCI"].data, b["SCI"].data)
     assert output_name(str(packed), "d", "_x") == "d/in_x.fits"
+
+
+# --- Roman ASDF ------------------------------------------------------------------------------
+
+
+def test_an_asdf_input_with_a_fits_output_is_refused_before_the_work(cli, tmp_path, monkeypatch):
+    from ipc_taichi.products import conventions
+
+    src = _roman_input(tmp_path, "rate")
+
+    def work(*args, **kwargs):
+        raise AssertionError("the work started")
+
+    monkeypatch.setattr(conventions, "correct_frames", work)
+    r = cli("decouple", "--law", "donlon2018", src, tmp_path / "out.fits", "--gain", GAIN)
+    _refused(r, tmp_path, "out.fits", ".asdf")
+
+
+# --- what a run says: IRS2 cut-outs, header values, stale temporaries ------------------------
+
+
+@pytest.mark.parametrize("shape", [(1, 2, 1600, 2048), (2048, 1600), (512, 512)])
+def test_a_cut_of_an_irs2_frame_is_refused_not_taken_as_contiguous(shape):
+    from ipc_taichi.products import layouts
+
+    header = {"TELESCOP": "JWST", "INSTRUME": "NIRSPEC", "DETECTOR": "NRS1",
+              "READPATT": "NRSIRS2", "NRS_NORM": 16, "NRS_REF": 4}
+    with pytest.raises(IPCInputError, match=r"jw_uncal.fits\[SCI\]: an IRS2 frame .*refused"):
+        layouts.arrangement_of(header, {}, shape, "jw_uncal.fits[SCI]")
+    # the detector image (a rate, the samples removed by the pipeline) stays contiguous
+    assert layouts.arrangement_of(header, {}, (2048, 2048), "x").identity
+
+
+def _whole_prefix(card, text, separators):
+    """``card`` is ``text`` whole, or a prefix of it ending before a separator, plus '...'."""
+    if card == text:
+        return True
+    head = card.removesuffix("...")
+    return card.endswith("...") and text.startswith(head) and text[len(head)] in separators
+
+
+def test_header_values_are_never_cut_inside_a_number(tmp_path, cpu):
+    from ipc_taichi.products.provenance import card_text
+
+    reason = ("reference pixels (NIRCam subarray SUB640 at x 1..640, y 1409..2048 of the "
+              "detector): zero-signal neighbours")
+    for width in range(20, len(reason) + 2):  # wider than its first word
+        cut = card_text(reason, width)
+        assert len(cut) <= width and _whole_prefix(cut, reason, " ,;"), (width, cut)
+    model = CouplingModel.resolve("donlon2018", "horizontal=0.987654321,vertical=0.876543219,"
+                                  "diagonal=0.0123456789,second=0.00234567891")
+    src = _plain(tmp_path)
+    process_fits(src, tmp_path / "out.fits", model=model)
+    geometry = fits.getval(tmp_path / "out.fits", "IPCGEOM")
+    described = model.geometry.describe()
+    assert len(described) > 68 and _whole_prefix(geometry, described, ";"), geometry
+
+
+def test_a_stale_temporary_of_a_killed_run_is_named_on_the_next(tmp_path, cli, caplog):
+    src = _plain(tmp_path)
+    stale = tmp_path / ".tmp-k1ll3d0aout.fits"  # what atomic_output names it
+    stale.write_bytes(b"\0" * 2880 * 4)
+    other = tmp_path / ".tmp-k1ll3d0bother.fits"  # another output's: not this run's business
+    other.write_bytes(b"\0")
+    with caplog.at_level("WARNING", logger="ipc_taichi"):
+        r = cli("decouple", "--law", "donlon2018", src, tmp_path / "out.fits")
+    assert r.returncode == 0, r.stderr
+    said = [rec.getMessage() for rec in caplog.records if ".tmp-" in rec.getMessage()]
+    assert len(said) == 1 and str(stale) in said[0] and "killed" in said[0], said
+    assert stale.exists()  # named, never removed (another run may be writing it)

@@ -590,7 +590,7 @@ def plan_product(arrays, mission, model, options, *, dq_where=None, zeroth=None,
     plans = tuple(plan_array(a, mission, model, options, zeroth) for a in arrays)
     option, given = _pedestal_option(options)
     if given and any(not a.zeroth for a in arrays):
-        pedestal_text = f"given: {str(option)[:40]} e-"
+        pedestal_text = f"given: {option} e-"  # the card cuts it whole
     elif zeroth is not None and any(p.pedestal is not None for p in plans):
         pedestal_text = zeroth.text
     else:
