@@ -443,3 +443,38 @@ def test_a_stale_temporary_of_a_killed_run_is_named_on_the_next(tmp_path, cli, c
     said = [rec.getMessage() for rec in caplog.records if ".tmp-" in rec.getMessage()]
     assert len(said) == 1 and str(stale) in said[0] and "killed" in said[0], said
     assert stale.exists()  # named, never removed (another run may be writing it)
+
+
+# --- a broken model file ---------------------------------------------------------------------
+
+
+def _broken(doc, part):
+    if part == "geometry pairs":
+        doc["geometry"] = [[0, 1], [1, 0]]
+    elif part == "geometry missing":
+        del doc["geometry"]
+    elif part == "table law":
+        doc["law"] = {"kind": "table", "signal_min": 0.0, "table": [0.01, 0.01]}
+    elif part == "table values":
+        doc["law"] = {"kind": "table", "signal_min": 0.0, "signal_step": 100.0, "table": "abc"}
+    else:
+        del doc["law"]["floor"]
+    return doc
+
+
+@pytest.mark.parametrize("part, named", [
+    ("geometry pairs", '"geometry": each entry must be [dy, dx, weight]'),
+    ("geometry missing", 'no "geometry" list'),
+    ("table law", 'a table law needs signal_min, signal_step, table: "signal_step" is missing'),
+    ("table values", '"law" (table): a malformed value'),
+    ("parametric law", 'a parametric law needs amp_diff'),
+])
+def test_a_broken_model_file_is_refused_naming_the_entry(cli, tmp_path, part, named):
+    import json
+
+    path = tmp_path / "m.json"
+    path.write_text(json.dumps(_broken(MODEL.to_dict(), part)))
+    src = _plain(tmp_path)
+    r = cli("decouple", "--model", path, src, tmp_path / "out.fits")
+    line = _refused(r, tmp_path, str(path), named)
+    assert "KeyError" not in line and not line.rstrip(")").endswith("unpack")
