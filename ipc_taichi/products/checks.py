@@ -10,7 +10,6 @@ and the plan (:mod:`ipc_taichi.products.plan`) the others.
 import math
 import os
 import stat
-import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -124,7 +123,7 @@ class LostFrame(DecoupleInfo):
 class LostFrames:
     """The frames of a stack with nothing to correct (an all-flagged
     integration of a ``_rateints``, an all-NaN frame): each is left as it came,
-    the others are corrected, and :meth:`say` says so in one warning line; a
+    the others are corrected, and :meth:`said` is the one warning line; a
     lone frame, a group of a warm-started ramp, or every frame lost: refused
     as before."""
 
@@ -141,13 +140,10 @@ class LostFrames:
         return LostFrame(converged=True, lost=str(exc).rsplit(": ", 1)[-1]) \
             if operation == "decouple" else None
 
-    def say(self):
-        """One warning line for the frames left as they came (none: nothing)."""
+    def said(self):
+        """The one warning line for the frames left as they came (None: none)."""
         if not self.lost:
-            return
-        from .conventions import ProductWarning  # conventions imports this module
-
+            return None
         more = f" (and {len(self.lost) - 1} more frame(s) like it)" if len(self.lost) > 1 else ""
-        warnings.warn(f"{self.lost[0]}{more}: left as it was; the other "
-                      f"{self.frames - len(self.lost)} frame(s) are {self.operation}d",
-                      ProductWarning, stacklevel=3)
+        return (f"{self.lost[0]}{more}: left as it was; the other "
+                f"{self.frames - len(self.lost)} frame(s) are {self.operation}d")

@@ -503,7 +503,8 @@ def correct_frames(data, operation, model, *, mask=None, region=None, scale=1.0,
                 after_frame(k + 1)
         settings["spare"].update({"in": measured[0]} if groups == 1 else {})
     record.warn(label)
-    lost.say()
+    if lost.said():
+        warnings.warn(lost.said(), ProductWarning, stacklevel=2)
     return out, infos
 
 
