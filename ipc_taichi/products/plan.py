@@ -539,8 +539,7 @@ def plan_array(facts, mission, model, options, zeroth=None):
                      header_gain(facts.keyword("GAIN"), facts.label), shape2d)
     check_gain_image(cv.unusable_gain(gain) if np.ndim(gain) == 2 else None, facts.label)
     exptime = _first(facts, options.exptime, mission.time_keywords) if units.rate else None
-    coadds = _first(facts, options.coadds, missions.COADD_KEYWORDS, int)  # 0: refused
-    coadds = 1 if coadds is None else coadds
+    coadds = int(_first(facts, options.coadds, missions.COADD_KEYWORDS, int) or 1)
     scale, units_text = cv.charge_scale(units, gain, exptime, facts.label,
                                         time_source=mission.time_source, coadds=coadds,
                                         gain_source=mission.gain_source)
