@@ -12,7 +12,9 @@ truncated file at the output path, and an existing file is only replaced with
 ``overwrite=True``.
 """
 
+import glob
 import json
+import logging
 import os
 import re
 import tempfile
@@ -23,7 +25,8 @@ from .errors import IPCInputError
 from .interrupts import stop_requested
 
 __all__ = ["read_image", "write_image", "parse_hdu", "atomic_output", "check_output_path",
-           "write_json", "history_lines", "HISTORY_WIDTH", "cannot_write"]
+           "write_json", "history_lines", "HISTORY_WIDTH", "cannot_write", "stale_temporaries",
+           "say_stale"]
 
 HISTORY_WIDTH = 70
 """Characters of text per HISTORY card: under the 72 a card holds, so astropy
@@ -140,6 +143,33 @@ def cannot_write(path, exc):
     return IPCInputError(f"{path}: cannot be written ({exc.strerror or type(exc).__name__})")
 
 
+def stale_temporaries(path):
+    """Temporary files an earlier run writing ``path`` left when it was killed
+    (SIGKILL, a power cut: nothing could remove them): ``.tmp-XXXXXXXX<name>``
+    files (:class:`atomic_output`) and ``.tmp-XXXXXXXX/<name>`` directories
+    (Roman ASDF) beside it."""
+    parent, name = os.path.split(os.path.abspath(path))
+    found = []
+    for tmp in sorted(glob.glob(os.path.join(glob.escape(parent), ".tmp-????????*"))):
+        base = os.path.basename(tmp)
+        if base == f"{base[:13]}{name}" and os.path.isfile(tmp):
+            found.append(tmp)
+        elif len(base) == 13 and os.path.isfile(os.path.join(tmp, name)):
+            found.append(os.path.join(tmp, name))
+    return found
+
+
+def say_stale(path):
+    """One warning line (logged) for each temporary file a killed run writing
+    ``path`` left beside it: never removed here (another run may be writing
+    it), named so that it can be."""
+    for tmp in stale_temporaries(path):
+        size = os.path.getsize(tmp) / 1e6
+        logging.getLogger("ipc_taichi").warning(
+            "warning: %s: %s (%.1f MB) was left by an earlier run writing it that was killed; "
+            "delete it if no other run is writing this output", path, tmp, size)
+
+
 class atomic_output:
     """Context manager yielding a temporary path beside ``path``; renamed onto
     ``path`` only if the block succeeds, deleted otherwise."""
@@ -150,6 +180,7 @@ class atomic_output:
 
     def __enter__(self):
         check_output_path(self.path, self.overwrite)
+        say_stale(self.path)
         parent = os.path.dirname(os.path.abspath(self.path))
         try:  # a read-only file system or a forbidden directory: name the output
             fd, self.tmp = tempfile.mkstemp(prefix=".tmp-", suffix=os.path.basename(self.path),

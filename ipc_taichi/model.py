@@ -82,6 +82,26 @@ DEFAULT_EDGE = "zero"
 """The edge rule when none is given: the paper's."""
 
 
+def _what_is_wrong(exc, kind, doc):
+    """One line saying which entry of a model file (``doc``) is missing or
+    malformed (never a bare ``KeyError`` or "not enough values to unpack")."""
+    if isinstance(exc, KeyError):
+        key = exc.args[0] if exc.args else "?"
+        if key == "geometry":
+            return 'no "geometry" list of [dy, dx, weight] entries'
+        needs = _PARAMETRIC if kind == "parametric" else ("signal_min", "signal_step", "table")
+        return (f'a {kind} law needs {", ".join(needs)}: "{key}" is missing' if key in needs
+                else f'no "{key}" entry')
+    if type(exc) not in (ValueError, TypeError):  # a law or geometry that does not validate
+        return str(exc)
+    entries = doc.get("geometry")
+    if not isinstance(entries, list) or not all(
+            isinstance(e, list) and len(e) == 3 and all(isinstance(v, (int, float)) for v in e)
+            for e in entries):
+        return f'"geometry": each entry must be [dy, dx, weight], numbers ({exc})'
+    return f'"law" ({kind}): a malformed value ({exc})'
+
+
 @dataclass(frozen=True)
 class CouplingModel:
     """The IPC model: coupling law, neighbour geometry and edge rule.
@@ -266,8 +286,7 @@ class CouplingModel:
                      else _map_of(doc["bond_map"], geometry, folder))
             return cls.resolve(law, geometry, doc.get("edge", DEFAULT_EDGE), bonds=bonds)
         except (KeyError, TypeError, ValueError) as exc:
-            raise bad(f"{type(exc).__name__}: {exc}" if not isinstance(exc, ValueError)
-                      else str(exc)) from None
+            raise bad(_what_is_wrong(exc, kind, doc)) from None
 
     @classmethod
     def load(cls, path, with_document=False):

@@ -90,6 +90,10 @@ def geometry_weights(points):
             den += w
         weights[axis] = num / den if den else 0.0
         errors[axis] = 1.0 / math.sqrt(den) if den else float("nan")
+    if not (weights["x"] > 0 and weights["y"] > 0):  # no coupling to divide by
+        raise ValueError("no interpixel coupling measured: the nearest-neighbour alpha is not "
+                         "above zero along both x and y (a detector or simulation without "
+                         "IPC, or too few measured points)")
     scale = 0.5 * (weights["x"] + weights["y"])
     for axis in _AXES:
         weights[axis] /= scale

@@ -81,6 +81,7 @@ def summary_lines(document, model):
     lines.append(f"non-linear IPC: {'DETECTED' if nli.get('detected') else 'not detected'}: "
                  f"{nli.get('note', '')}")
     lines.append(f"law: {model.describe()}")
+    lines += _alpha_lines(document.get("fit") or {})
     choice = document.get("law_choice") or {}
     if choice.get("constant_fits_as_well"):
         lines.append("law: a constant fits the held-out data as well as any signal-dependent "
@@ -100,6 +101,32 @@ def summary_lines(document, model):
         lines.append(f"assumed: {line}")
     for line in document.get("notes", []):
         lines.append(f"note: {line}")
+    return lines
+
+
+def _alpha_lines(fit):
+    """alpha and the geometry weights of the law written, with their errors
+    (a constant: its weighted mean; a law that changes with signal: its 1-sigma
+    band at the middle and the top of the measured range)."""
+    lines = []
+    row = (fit.get("forms") or {}).get(fit.get("chosen")) or {}
+    band, held = fit.get("band") or {}, fit.get("held_outside") or {}
+    if row.get("alpha") is not None and "alpha_error" in row:
+        lines.append(f"alpha (nearest neighbours, constant): "
+                     f"{_pm(row['alpha'], row['alpha_error'], 100, '.4f', ' %')}")
+    elif band.get("signal") and held.get("total_signal_range"):
+        grid = np.asarray(band["signal"], float)
+        lo, hi = held["total_signal_range"]
+        at = []
+        for s in (np.sqrt(max(lo, 1.0) * hi) / 2, hi / 2):  # S at (S, 0) inside S + N's range
+            i = int(np.argmin(np.abs(np.log(grid / s))))
+            at.append(f"{_pm(band['alpha_s0'][i], band['alpha_s0_error'][i], 100, '.4f', ' %')}"
+                      f" at S = {grid[i]:.3g} e-")
+        lines.append(f"alpha(S,0) ({fit.get('chosen')}, 1-sigma band): {'; '.join(at)}")
+    weights, errors = fit.get("weights") or {}, fit.get("weight_errors") or {}
+    if weights:
+        lines.append("geometry weights (x and y average 1): " + ", ".join(
+            f"{axis} {_pm(w, errors.get(axis), 1.0, '.3f')}" for axis, w in weights.items()))
     return lines
 
 

@@ -29,6 +29,8 @@ measurements it is reported beside them for comparison.
 """
 
 import datetime
+import os
+import warnings
 
 import numpy as np
 
@@ -131,10 +133,14 @@ class _Flats:
             mask = np.concatenate([f.mask for f in group])
             sat = [f.meta.get("saturation") for f in group if f.meta.get("saturation")]
             label = ", ".join(f.label for f in group)
+            flat_less = _no_shot_noise(data, mask, read_noise)
+            if flat_less:
+                not_measured.append(f"{label}: flat ramps: {flat_less}")
+                continue
             self.sets.append((label, ramps.FlatRamps.from_ramps(
                 data, mask, saturation=min(sat) if sat else None,
                 collection_steps=collection_steps)))
-        self.measured = [(label, s.measure(read_noise=read_noise)) for label, s in self.sets]
+        self.measured = [(label, _measured(label, s, read_noise)) for label, s in self.sets]
         self.kernels = [m["brighter_fatter"].get("kernel") if m["brighter_fatter"].get("measured")
                         else None for _, m in self.measured]
         self.ramp_rows = []
@@ -217,6 +223,35 @@ def _by_illumination(files):
 def _charge_per_group(f):
     d = f.data
     return float(np.nanmedian(d[:, -1] - d[:, 0]) / max(d.shape[1] - 1, 1))
+
+
+def _no_shot_noise(data, mask, read_noise):
+    """Why flat ramps (e-) hold no shot noise to measure (the increments'
+    variance across pixels within twice the read noise squared), else None:
+    a noiseless or saturated flat, refused before the covariance fit."""
+    incs = np.diff(np.where(np.broadcast_to(mask, data.shape), np.nan, data), axis=-3)
+    with np.errstate(invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # an all-masked group
+        var = np.nanvar(incs.reshape(incs.shape[:-2] + (-1,)), axis=-1)
+        mean = np.nanmean(np.abs(incs))
+    floor = 2.0 * float(read_noise or 0.0) ** 2 + 1e-9 * float(mean or 0.0) ** 2
+    largest = float(np.nanmax(var)) if np.isfinite(var).any() else 0.0
+    if largest <= floor:
+        return (f"no shot noise left (the increments' variance {largest:.3g} e-^2 <= twice "
+                "the read noise squared): saturated or not a flat")
+    return None
+
+
+def _measured(label, flat_ramps, read_noise):
+    """The joint fit of one illumination's flat ramps; a fit that cannot start
+    or finish (SciPy's ValueError) refused in one line naming the files."""
+    try:
+        return flat_ramps.measure(read_noise=read_noise)
+    except IPCInputError:
+        raise
+    except ValueError as exc:
+        raise IPCInputError(f"{label}: the flat ramps' covariance fit failed ({exc}); are "
+                            "they flats of a detector (shot noise, IPC)?") from None
 
 
 def _measure_frames(flat_files, read_noise, not_measured, stripes=None):
@@ -378,6 +413,7 @@ def calibrate(darks=(), flats=(), reference=None, output=None, *, report_path=No
     for path in (output, report_path):  # fail before measuring
         if path is not None:
             check_output_path(path, overwrite)
+    _check_figures_folder(figures)
     options = {"hdu": hdu, "gain": gain, "dq_bits": dq_bits, "refpix": refpix, "bunit": bunit}
     dark_frames = [read_frames(p, role="dark", **options) for p in darks]
     flat_frames = [read_frames(p, role="flat", **options) for p in flats]
@@ -420,7 +456,7 @@ def calibrate(darks=(), flats=(), reference=None, output=None, *, report_path=No
         transfer_check = transfer.held_out_residuals(hot.integrations, hot.events, hot.bins,
                                                      points_for(None)[1], fit["chosen"])
     model = CouplingModel.resolve(law, geometry, "zero")
-    nl_ipc = _nonlinear_ipc(fit, effects.pop("flat_ramp_nonlinear_ipc"))
+    nl_ipc = _nonlinear_ipc(fit, effects.pop("flat_ramp_nonlinear_ipc"), transfer_check)
     provenance = {"software": f"ipc_taichi {__version__}", "command": "calibrate",
                   "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
                   "darks": [f.label for f in dark_frames], "flats": [f.label for f in flat_frames],
@@ -456,15 +492,52 @@ def calibrate(darks=(), flats=(), reference=None, output=None, *, report_path=No
     return {"model": model, "report": document, "output": output}
 
 
-def _nonlinear_ipc(fit, ramp_evidence):
+def _check_figures_folder(folder):
+    """``--figures``: a folder, or a name for one; anything else refused
+    before the work (not after it, with the model already written)."""
+    if folder is None:
+        return
+    if os.path.exists(folder) and not os.path.isdir(folder):
+        raise IPCInputError(f"--figures {folder}: exists and is not a folder; name a folder "
+                            "for the figures")
+    parent = os.path.abspath(folder)
+    while not os.path.exists(parent):
+        parent = os.path.dirname(parent)
+    if not os.path.isdir(parent) or not os.access(parent, os.W_OK | os.X_OK):
+        raise IPCInputError(f"--figures {folder}: cannot be written ({parent} is not a "
+                            "writable folder)")
+
+
+def _transfer_supports(transfer_check):
+    """Whether the held-out transfer check (:mod:`.transfer`) finds the chosen
+    law correcting held-out hot pixels better than the best constant (their
+    residuals apart by more than twice their combined error); None when
+    there is no check."""
+    if not transfer_check:
+        return None
+    chosen, constant = transfer_check.get("chosen") or {}, transfer_check.get("constant") or {}
+    if chosen.get("residual") is None or constant.get("residual") is None:
+        return None
+    error = float(np.hypot(chosen.get("error") or 0.0, constant.get("error") or 0.0))
+    return abs(constant["residual"]) - abs(chosen["residual"]) > 2.0 * error
+
+
+def _nonlinear_ipc(fit, ramp_evidence, transfer_check=None):
     """Non-linear IPC is claimed where held-out data choose a law richer than
-    a constant (brighter-fatter already removed from flat ramps), or where
-    the flat ramps' joint fit finds the IPC terms changing with signal beside
-    brighter-fatter; the second without the first is said: the law written
-    then does not follow it."""
+    a constant (brighter-fatter already removed from flat ramps) and the
+    held-out transfer check, where there is one, does not find the best
+    constant correcting as well; or where the flat ramps' joint fit finds the
+    IPC terms changing with signal beside brighter-fatter; the second without
+    the first is said: the law written then does not follow it."""
     choice = fit.get("law_choice") or {}
     chosen = fit.get("chosen")
     by_law = bool(choice) and chosen != "constant"
+    confirms = _transfer_supports(transfer_check) if by_law else None
+    if confirms is False:
+        by_law = False
+        choice = dict(choice, unconfirmed=(
+            f"the law choice prefers {chosen}, but on held-out hot pixels the best constant "
+            "corrects as well (transfer check): not confirmed"))
     by_ramps = bool(ramp_evidence and ramp_evidence.get("detected"))
     margin = (choice.get("margin_against_constant") or {}).get(chosen) if by_law else None
     if not choice and not by_ramps:
@@ -479,9 +552,10 @@ def _nonlinear_ipc(fit, ramp_evidence):
                 "per-level points are too noisy for the law to follow it: the law written "
                 "is a constant (more pixels or integrations would pin its shape)")
     else:
-        note = "a constant predicts held-out data as well as any signal-dependent law"
+        note = choice.get("unconfirmed") or \
+            "a constant predicts held-out data as well as any signal-dependent law"
     return {"detected": by_law or by_ramps, "significance": margin, "law_follows": by_law,
-            "note": note, "flat_ramps": ramp_evidence}
+            "note": note, "flat_ramps": ramp_evidence, "transfer_confirms": confirms}
 
 
 def _sections(effects, fit):

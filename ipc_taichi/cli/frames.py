@@ -236,8 +236,9 @@ def output_name(input_path, output_dir, suffix):
     for an ASDF input; a compressed input gives an uncompressed output)."""
     name = os.path.basename(input_path)
     ext = ".fits"
-    if name.lower().endswith(".gz"):
-        name = name[:-3]
+    for packed in (".gz", ".bz2", ".zip"):  # read as astropy reads them; written plain
+        if name.lower().endswith(packed):
+            name = name[:-len(packed)]
     for known in (".fits", ".fit", ".fts", ".asdf"):
         if name.lower().endswith(known):
             name = name[:-len(known)]

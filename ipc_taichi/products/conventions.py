@@ -49,12 +49,12 @@ from ..decoupling import decouple
 from ..errors import ConvergenceWarning, DivergenceError, IPCInputError
 from ..interrupts import check_stop
 from ..progress import reporters
+from .checks import FrameLost, LostFrames, dq_word
 from .missions import DEFAULT_DQ, JWST_DQ_FLAGS, REFERENCE_PIXEL
 
 __all__ = ["ProductWarning", "parse_dq_bits", "untrusted", "unusable_gain", "science_region",
-           "charge_scale", "correct_frames", "Units", "RATE_UNITS",
-           "CHARGE_UNITS", "REFERENCE_PIXEL", "warn_unphysical", "PHYSICAL_RANGE", "unphysical",
-           "Unphysical", "UNPHYSICAL_CHOICES"]
+           "charge_scale", "correct_frames", "Units", "RATE_UNITS", "CHARGE_UNITS", "Unphysical",
+           "REFERENCE_PIXEL", "PHYSICAL_RANGE", "unphysical", "UNPHYSICAL_CHOICES"]
 
 
 class ProductWarning(UserWarning):
@@ -69,7 +69,7 @@ def parse_dq_bits(text, flags=None):
     if text is None:
         text = DEFAULT_DQ
     if isinstance(text, (int, np.integer)):
-        return int(text)
+        return dq_word(int(text), text)
     table = dict(JWST_DQ_FLAGS) if flags is None else flags
     bits = 0
     for item in str(text).replace("+", ",").split(","):
@@ -77,7 +77,7 @@ def parse_dq_bits(text, flags=None):
         if not item or item.lower() == "none":
             continue
         if item.isdigit():
-            bits |= int(item)
+            bits |= dq_word(int(item), item)
         elif item.upper() in table:
             bits |= table[item.upper()]
         else:
@@ -216,14 +216,6 @@ class Unphysical:
                 + ([f"the {self.infinite} infinite one(s) are masked (they cannot couple)"]
                    if self.infinite else []))
         warnings.warn(f"{found}: {done}", ProductWarning, stacklevel=stacklevel)
-
-
-def warn_unphysical(charge, mask, where):
-    """Warn about the unflagged unphysical pixels of one frame (kept: the
-    behaviour before they were masked; see :class:`Unphysical`)."""
-    record = Unphysical("keep")
-    record.add(charge, mask, where)
-    record.warn(where, stacklevel=3)
 
 
 def science_region(shape, refpix=None, reference=None):
@@ -447,11 +439,10 @@ def correct_frames(data, operation, model, *, mask=None, region=None, scale=1.0,
         starts from the previous group's answer plus the new charge; the same
         stopping rule, so the same tolerance as from scratch).
     noise : dict, optional
-        The product's noise arrays beside ``data`` (``err``, ``var_poisson``,
-        ``var_rnoise``, ``var_flat``; each of ``data``'s shape, float64,
-        C-contiguous, data units), replaced in place, frame by frame, by their values after the
-        decoupler (:func:`ipc_taichi.noise.propagate_noise`, with this
-        frame's region, model, mask, scale and pedestal). Decouple only.
+        The product's noise arrays beside ``data`` (``err``, ``var_poisson``, ``var_rnoise``,
+        ``var_flat``; each of ``data``'s shape, float64, C-contiguous, data units), replaced in
+        place, frame by frame, by their values after the decoupler with this frame's region,
+        model, mask, scale and pedestal (:func:`ipc_taichi.noise.propagate_noise`). Decouple only.
 
     Returns
     -------
@@ -482,17 +473,22 @@ def correct_frames(data, operation, model, *, mask=None, region=None, scale=1.0,
     noisy = {k: v.reshape((-1, ny, nx)) for k, v in (noise or {}).items()
              if operation == "decouple"}
     cached = {}
-    infos = []
+    infos, lost = [], LostFrames(frames.shape[0])
     groups = shape[-3] if ramp and operation == "decouple" and len(shape) > 2 else 1
     for k0 in range(0, frames.shape[0], groups):
         check_stop()  # a SIGINT/SIGTERM swallowed by a library stops the run here
         ks = range(k0, k0 + groups)
         wheres = [f"{label} frame {k}" if frames.shape[0] > 1 else label for k in ks]
         into = settings["spare"].pop("in", None) if groups == 1 else None  # done with
-        measured, ms = zip(*(_frame_in(frames[k][region], s, s_in, base, record, where, offset,
-                                       operation, None if masks is None else masks[k][region],
-                                       into)
-                             for k, where in zip(ks, wheres)))
+        try:
+            measured, ms = zip(*(_frame_in(frames[k][region], s, s_in, base, record, where,
+                                           offset, operation,
+                                           None if masks is None else masks[k][region], into)
+                                 for k, where in zip(ks, wheres)))
+        except FrameLost as exc:  # one frame of a stack: left as it came, said
+            infos.append(lost.keep(exc, operation, groups))
+            flat_out[k0][region] = frames[k0][region]
+            continue
         results, run_infos = _solve(measured, ms, base, cached, wheres, settings)
         for k, y, m, result, info in zip(ks, measured, ms, results, run_infos):
             if not _unit(s_in):
@@ -507,6 +503,8 @@ def correct_frames(data, operation, model, *, mask=None, region=None, scale=1.0,
                 after_frame(k + 1)
         settings["spare"].update({"in": measured[0]} if groups == 1 else {})
     record.warn(label)
+    if lost.said():
+        warnings.warn(lost.said(), ProductWarning, stacklevel=2)
     return out, infos
 
 
@@ -525,8 +523,8 @@ def _frame_in(frame, s, s_in, base, record, where, offset, operation, flagged, i
         m = bad if m is None else (m | bad)
     good = np.isfinite(measured) if m is None else (np.isfinite(measured) & ~m)
     if not good.any():
-        raise IPCInputError(f"{where}: no finite, unmasked pixel to {operation} "
-                            "(all NaN, flagged or unphysical)")
+        raise FrameLost(f"{where}: no finite, unmasked pixel to {operation} "
+                        "(all NaN, flagged or unphysical)")
     return measured, m
 
 

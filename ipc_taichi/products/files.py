@@ -4,6 +4,7 @@ import time
 import warnings
 
 from ..model import CouplingModel
+from .checks import check_input_file
 from .fits import process_fits
 from .missions import is_asdf
 from .options import ProductOptions
@@ -24,6 +25,7 @@ def process_product(input_path, output_path, operation="decouple", model=None, o
     (:func:`~ipc_taichi.products.fits.process_fits`); same options
     (:class:`~ipc_taichi.products.options.ProductOptions`), same summary, with
     ``seconds`` (wall-clock time of the whole call, reading and writing included)."""
+    check_input_file(input_path)  # before its first bytes are read
     run = process_asdf if is_asdf(input_path) else process_fits
     start = time.perf_counter()
     summary = run(input_path, output_path, operation, model=model,

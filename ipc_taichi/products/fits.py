@@ -73,7 +73,7 @@ def _check_paths(input_path, output_path, operation, options):
     if os.path.exists(output_path) and os.path.exists(input_path) and \
             os.path.samefile(input_path, output_path):
         raise IPCInputError(f"{output_path}: is the input; write to another file")
-    if str(output_path).lower().endswith((".gz", ".fz", ".bz2")):
+    if str(output_path).lower().endswith((".gz", ".fz", ".bz2", ".zip")):
         raise IPCInputError(f"{output_path}: the output is written uncompressed; name it .fits")
 
 

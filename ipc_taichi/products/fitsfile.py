@@ -5,6 +5,7 @@ What :mod:`ipc_taichi.products.fits` orchestrates. Errors are one line naming
 the user's file and HDU (never a temporary path).
 """
 
+import bz2
 import gzip
 import os
 import warnings
@@ -12,6 +13,7 @@ import warnings
 import numpy as np
 
 from ..errors import IPCInputError
+from .checks import check_input_file
 
 __all__ = ["open_fits", "hdu_label", "shape_of", "keyword", "RawImage", "read_array",
            "science_indices", "flag_hdus", "noise_hdus", "write_skeleton", "science_header",
@@ -29,8 +31,7 @@ def open_fits(path, memmap=True):
     (a file cut inside its last header would otherwise lose that HDU)."""
     from astropy.io import fits
 
-    if not os.path.exists(path):
-        raise IPCInputError(f"{path}: no such file")
+    check_input_file(path)
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # a cut file is found below, by its size
@@ -39,9 +40,7 @@ def open_fits(path, memmap=True):
         text = str(exc).splitlines()[0] if str(exc) else ""
         raise IPCInputError(f"{path}: not a readable FITS file ({type(exc).__name__}"
                             f"{': ' + text if text else ''})") from None
-    with open(path, "rb") as f:
-        compressed = f.read(2) == b"\x1f\x8b"
-    if not compressed:
+    if compression(path) is None:  # astropy reads gzip, bzip2 and zip whole
         info = hdul.fileinfo(len(hdul) - 1)
         end, size = info["datLoc"] + info["datSpan"], os.path.getsize(path)
         if size < end:
@@ -156,9 +155,9 @@ class RawImage:
         self.zero = header.get("BZERO", 0)
         self.scale = header.get("BSCALE", 1)
         self.blank = header.get("BLANK") if self.integer else None
-        with open(path, "rb") as f:
-            if f.read(2) == b"\x1f\x8b":
-                raise IPCInputError(f"{path}: --tile needs an uncompressed file (gunzip it)")
+        if compression(path) is not None:
+            raise IPCInputError(f"{path}: --tile needs an uncompressed file "
+                                f"({compression(path)}: decompress it first)")
         self.raw = np.memmap(path, dtype=dtype, mode="r", offset=info["datLoc"],
                              shape=self.shape)
 
@@ -237,10 +236,27 @@ def science_header(header, out_dtype):
     return h
 
 
-def _raw_opener(path):
+_MAGIC = {b"\x1f\x8b": "gzip", b"BZh": "bzip2", b"PK\x03\x04": "zip"}
+"""The first bytes of the compressed files astropy opens as FITS."""
+
+
+def compression(path):
+    """How ``path`` is compressed as a whole (``"gzip"``, ``"bzip2"``, ``"zip"``),
+    by its first bytes; None when it is not."""
     with open(path, "rb") as f:
-        gz = f.read(2) == b"\x1f\x8b"
-    return gzip.open(path, "rb") if gz else open(path, "rb")
+        head = f.read(4)
+    return next((kind for magic, kind in _MAGIC.items() if head.startswith(magic)), None)
+
+
+def _raw_opener(path):
+    """The file's bytes as astropy reads them (a zip archive: its first member)."""
+    kind = compression(path)
+    if kind == "zip":
+        import zipfile
+
+        archive = zipfile.ZipFile(path)
+        return archive.open(archive.namelist()[0])
+    return {"gzip": gzip.open, "bzip2": bz2.open}.get(kind, open)(path, "rb")
 
 
 def write_skeleton(tmp, path, hdul, headers, science):

@@ -207,6 +207,11 @@ def irs2_geometry(primary, science, shape, label):
     instrument = str(get("INSTRUME") or "").strip().upper()
     longer = max(ny, nx) > DETECTOR_PIXELS
     if not longer:
+        if is_irs2_pattern(readpatt) and (ny, nx) != (DETECTOR_PIXELS, DETECTOR_PIXELS):
+            raise IPCInputError(f"{label}: an IRS2 frame ({readpatt}) of {ny}x{nx} pixels, "
+                                f"neither the interleaved full frame nor the {DETECTOR_PIXELS}x"
+                                f"{DETECTOR_PIXELS} detector image (a cut-out): whether "
+                                "reference samples are interleaved in it is unknown; refused")
         return None
     if not is_irs2_pattern(readpatt):
         if instrument != "NIRSPEC":

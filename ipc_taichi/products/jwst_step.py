@@ -160,6 +160,7 @@ def correct_model(datamodel, coupling, options, superbias=None):
     """
     plan, flags = plan_model(datamodel, coupling, options)
     p, = plan.arrays
+    _refuse_file_options(options, np.asarray(datamodel.data).dtype, p.label)
     science = p.arrangement.to_science  # an IRS2 frame: its contiguous image
     stored = np.asarray(datamodel.data)
     data, flags = science(stored), [science(f) for f in flags]
@@ -178,7 +179,8 @@ def correct_model(datamodel, coupling, options, superbias=None):
                                  scale=p.scale, out=out, max_iter=options.max_iter,
                                  tol=options.tol, arch=options.arch,
                                  precision=options.precision, label=p.label, unphysical=record,
-                                 ramp=p.ramp, noise=noise)
+                                 ramp=p.ramp, noise=noise, pedestal=p.pedestal,
+                                 progress=options.progress)
     if superbias is not None:
         out += superbias.astype(out.dtype)
         # pixels left alone (reference border, masked): exactly as they came
@@ -198,6 +200,19 @@ def correct_model(datamodel, coupling, options, superbias=None):
     prov.unphysical[p.index] = record.masked
     _record(datamodel, prov, p.index)
     return infos, prov
+
+
+def _refuse_file_options(options, dtype, label):
+    """The options of a file run that a datamodel corrected in place cannot
+    honour, refused in one line (never dropped silently)."""
+    for name, value in (("hdu", options.hdu), ("tile", options.tile),
+                        ("overwrite", options.overwrite or None)):
+        if value is not None:
+            raise IPCInputError(f"{label}: {name}={value!r} is for files (ipc-taichi "
+                                "decouple); the Step corrects the datamodel in place")
+    if options.output_dtype not in (None, "same") and np.dtype(options.output_dtype) != dtype:
+        raise IPCInputError(f"{label}: output_dtype={options.output_dtype!r}: a datamodel keeps "
+                            f"its schema's dtype ({dtype})")
 
 
 def _record(datamodel, prov, index):

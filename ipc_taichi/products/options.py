@@ -13,6 +13,7 @@ from dataclasses import dataclass
 from .. import iteration
 from ..errors import IPCInputError
 from ..model import EDGES, CouplingModel
+from .checks import check_numbers
 from .missions import DEFAULT_DQ
 
 __all__ = ["ProductOptions", "resolve_model", "NOISE_CHOICES"]
@@ -136,6 +137,7 @@ class ProductOptions:
             if base["edge"] not in EDGES:
                 raise IPCInputError(f"edge must be one of {', '.join(EDGES)}, got "
                                     f"{base['edge']!r}")
+        check_numbers(base)
         if base.get("noise", "propagate") not in NOISE_CHOICES:
             raise IPCInputError(f"noise must be one of {', '.join(NOISE_CHOICES)}, got "
                                 f"{base['noise']!r}")

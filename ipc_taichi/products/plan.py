@@ -49,6 +49,7 @@ from ..model import CouplingModel
 from ..noise import METHOD
 from . import conventions as cv
 from . import layouts, missions
+from .checks import check_gain_image, check_pedestal, header_gain
 from .gain import read_frame, read_gain
 from .provenance import Provenance
 
@@ -470,6 +471,7 @@ def _pedestal(facts, options, gain, zeroth, layout):
         return None
     if given:
         frame = np.asarray(read_frame(option, shape2d, "pedestal"), dtype=np.float64)
+        check_pedestal(frame, option, cv.PHYSICAL_RANGE)
         if frame.ndim == 2:
             frame = layout.arrangement.to_science(frame)
         return np.broadcast_to(frame, tuple(layout.shape))
@@ -533,8 +535,9 @@ def plan_array(facts, mission, model, options, zeroth=None):
                             "corrected whole: run without --tile")
     shape2d = layout.shape
     units = _units(facts, mission, options)
-    gain = read_gain(options.gain if options.gain is not None else facts.keyword("GAIN"),
-                     shape2d)
+    gain = read_gain(options.gain if options.gain is not None else
+                     header_gain(facts.keyword("GAIN"), facts.label), shape2d)
+    check_gain_image(cv.unusable_gain(gain) if np.ndim(gain) == 2 else None, facts.label)
     exptime = _first(facts, options.exptime, mission.time_keywords) if units.rate else None
     coadds = int(_first(facts, options.coadds, missions.COADD_KEYWORDS, int) or 1)
     scale, units_text = cv.charge_scale(units, gain, exptime, facts.label,
@@ -591,7 +594,7 @@ def plan_product(arrays, mission, model, options, *, dq_where=None, zeroth=None,
     plans = tuple(plan_array(a, mission, model, options, zeroth) for a in arrays)
     option, given = _pedestal_option(options)
     if given and any(not a.zeroth for a in arrays):
-        pedestal_text = f"given: {str(option)[:40]} e-"
+        pedestal_text = f"given: {option} e-"  # the card cuts it whole
     elif zeroth is not None and any(p.pedestal is not None for p in plans):
         pedestal_text = zeroth.text
     else:

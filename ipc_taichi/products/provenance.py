@@ -33,7 +33,7 @@ import datetime
 from .. import __version__
 from ..fitsio import history_lines
 
-__all__ = ["Provenance", "status", "section"]
+__all__ = ["Provenance", "status", "section", "card_text"]
 
 PENDING = "PENDING"
 
@@ -45,6 +45,18 @@ brighter-fatter and non-linearity sections are never applied."""
 
 def _now():
     return datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
+
+
+def card_text(text, width, separators=" ,;"):
+    """``text`` in at most ``width`` characters for a header card: whole, or
+    cut at its last separator (of ``separators``) that leaves room for
+    ``...``, never inside a number or a word (the HISTORY holds it whole)."""
+    text = str(text)
+    if len(text) <= width:
+        return text
+    head = text[:width - 3]
+    cut = max(head.rfind(c) for c in separators)
+    return (head[:cut].rstrip(" ,;") if cut > 0 else head) + "..."
 
 
 def section(region):
@@ -119,6 +131,8 @@ class Provenance:
             header.remove(key, ignore_missing=True, remove_all=True)
         first = min(self.hdus)
         every = [i for v in self.infos.values() for i in v]
+        law, geometry = card_text(self.model.law.name, 68), card_text(
+            self.model.geometry.describe(), 68, ";")  # a term is "dy,dx=w"
         cards = {}
         if self.operation == "decouple":
             cards["S_IPC"] = (self.status(), "IPC correction (ipc_taichi)")
@@ -127,15 +141,16 @@ class Provenance:
             "IPCOP": (self.operation, "IPC operation applied"),
             "IPCNHDU": (len(self.hdus), "science HDUs changed"),
             "IPCHDU": (f"{first} {self.hdus[first]['name']}"[:60], "first HDU changed: index name"),
-            "IPCLAW": (self.model.law.name[:68], "IPC coupling law alpha(S,N), electrons"),
-            "IPCGEOM": (self.model.geometry.describe()[:68], "IPC geometry (dy,dx)=weight"),
+            "IPCLAW": (law, "IPC coupling law alpha(S,N), electrons"),
+            "IPCGEOM": (geometry, "IPC geometry (dy,dx)=weight"),
             "IPCEDGE": (self.model.edge, "IPC edge rule"),
-            "IPCEDGER": (self.edge_reason[:60], "why this edge rule"),
+            "IPCEDGER": (card_text(self.edge_reason, 60), "why this edge rule"),
             "IPCDQBIT": (self.bits, "DQ bits of pixels left out"),
             "IPCNBAD": (sum(self.unphysical.values()), "unflagged unphysical pixels masked"),
-            "IPCPED": (self.pedestal_text[:60], "charge on the node before the first read"),
+            "IPCPED": (card_text(self.pedestal_text, 60),
+                       "charge on the node before the first read"),
             "IPCCOADD": (self.coadds, "exposures summed per frame"),
-            "IPCNOISE": (self.noise[:68], "ERR/VAR_* arrays: how carried"),
+            "IPCNOISE": (card_text(self.noise, 68), "ERR/VAR_* arrays: how carried"),
             "IPCARCH": (self.arch, "Taichi arch used"),
             "IPCPREC": (self.precision, "floating precision"),
         })
@@ -185,6 +200,9 @@ class Provenance:
                              "contiguous image, every other sample as it came")
             if self.operation == "decouple":
                 for k, i in enumerate(self.infos[index]):
+                    if getattr(i, "lost", ""):  # products.checks.LostFrame
+                        lines.append(f"  frame {k:5d}: left as it was: {i.lost}")
+                        continue
                     it, conv = (i.iterations, i.converged) if i else (0, False)
                     last = i.max_delta[-1] if i and i.max_delta else 0.0
                     lines.append(f"  frame {k:5d}: {it:3d} iterations, "
@@ -207,6 +225,7 @@ class Provenance:
             infos = self.infos[index]
             out.update(removed=REMOVED, S_IPC=self.status(),
                        iterations=[int(i.iterations) for i in infos],
+                       lost_frames=[k for k, i in enumerate(infos) if getattr(i, "lost", "")],
                        converged=self._converged(infos), tol=float(self.tol),
                        max_iter=int(self.max_iter))
         return out

@@ -33,10 +33,11 @@ import numpy as np
 
 from .. import iteration, runtime
 from ..errors import IPCInputError
-from ..fitsio import cannot_write, check_output_path
+from ..fitsio import cannot_write, check_output_path, say_stale
 from ..interrupts import check_stop
 from . import conventions as cv
 from . import missions
+from .checks import check_input_file
 from .options import ProductOptions, resolve_model
 from .plan import NOISE_ARRAYS, ArrayFacts, noise_of, plan_product
 
@@ -63,8 +64,10 @@ def process_asdf(input_path, output_path, operation="decouple", *, model=None, o
     model, options = resolve_model(model, options)
     max_iter, tol = iteration.check_arguments(options.max_iter, options.tol)
     check_output_path(output_path, options.overwrite)
-    if not os.path.exists(input_path):
-        raise IPCInputError(f"{input_path}: no such file")
+    check_input_file(input_path)
+    if not str(output_path).lower().endswith(".asdf"):  # found before the work, not after
+        raise IPCInputError(f"{output_path}: a Roman ASDF product is written as ASDF; name the "
+                            "output .asdf")
     if os.path.exists(output_path) and os.path.samefile(input_path, output_path):
         raise IPCInputError(f"{output_path}: is the input; write to another file")
     label = f"{input_path}[data]"
@@ -102,7 +105,8 @@ def process_asdf(input_path, output_path, operation="decouple", *, model=None, o
                                      scale=p.scale, out=out, max_iter=max_iter, tol=tol,
                                      arch=options.arch, precision=options.precision,
                                      label=label, unphysical=record,
-                                     progress=options.progress, ramp=p.ramp, noise=noise)
+                                     progress=options.progress, ramp=p.ramp, noise=noise,
+                                     pedestal=p.pedestal)
         dm.data = out
         for name, value in noise.items():  # propagated, each in its own dtype
             dm[name] = value.astype(came[name].dtype)
@@ -182,6 +186,7 @@ def _save(dm, output_path, overwrite):
     the target's own name (the datamodel records its file name), then renamed
     into place; the directory is removed on any error, SIGINT or SIGTERM."""
     parent = os.path.dirname(os.path.abspath(output_path))
+    say_stale(output_path)
     try:
         staging = tempfile.TemporaryDirectory(prefix=".tmp-", dir=parent)
     except OSError as exc:  # name the output, not the temporary directory
@@ -190,9 +195,10 @@ def _save(dm, output_path, overwrite):
         tmp = os.path.join(tmpdir, os.path.basename(output_path))
         try:
             dm.save(tmp)
-        except OSError as exc:
+        except (OSError, ValueError) as exc:
+            why = getattr(exc, "strerror", None) or (str(exc).splitlines() or [""])[0]
             raise IPCInputError(f"{output_path}: cannot be written "
-                                f"({exc.strerror or type(exc).__name__})") from None
+                                f"({why or type(exc).__name__})") from None
         check_stop()  # a swallowed SIGINT/SIGTERM: do not commit
         check_output_path(output_path, overwrite)  # it may have appeared meanwhile
         os.replace(tmp, output_path)
