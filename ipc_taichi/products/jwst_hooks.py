@@ -27,8 +27,7 @@ the parameters built in, which the string names with no arguments::
 docs/products.md has the recipe and the parameter file.
 """
 
-import sys
-
+from .hooks import configured_subclass, spec_parameters
 from .jwst_step import IPCTaichiStep
 
 __all__ = ["configured_step", "hook_parameters"]
@@ -36,12 +35,7 @@ __all__ = ["configured_step", "hook_parameters"]
 
 def hook_parameters():
     """The parameter names :class:`IPCTaichiStep` takes (those of its spec)."""
-    names = []
-    for line in IPCTaichiStep.spec.splitlines():
-        name = line.split("=", 1)[0].strip()
-        if name and not name.startswith("#"):
-            names.append(name)
-    return names
+    return spec_parameters(IPCTaichiStep)
 
 
 def configured_step(name, **parameters):
@@ -49,17 +43,4 @@ def configured_step(name, **parameters):
     default to ``parameters`` (those given to an instance still win), defined in
     the calling module so that ``"module.name"`` imports it: a post-hook string
     with no dot in its arguments. Unknown parameter names are refused."""
-    known = set(hook_parameters())
-    unknown = sorted(set(parameters) - known)
-    if unknown:
-        raise ValueError(f"configured_step {name}: unknown parameter(s) {', '.join(unknown)}; "
-                         f"IPCTaichiStep takes {', '.join(sorted(known))}")
-    defaults = dict(parameters)
-
-    def __init__(self, *args, **kwargs):
-        IPCTaichiStep.__init__(self, *args, **dict(defaults, **kwargs))
-
-    module = sys._getframe(1).f_globals.get("__name__", __name__)
-    return type(name, (IPCTaichiStep,), {"__init__": __init__, "__module__": module,
-                                         "__qualname__": name,
-                                         "__doc__": f"IPCTaichiStep with {defaults}"})
+    return configured_subclass(IPCTaichiStep, name, parameters)
