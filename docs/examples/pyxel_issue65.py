@@ -25,6 +25,7 @@ from ipc_taichi.laws import get_law  # noqa: E402
 from ipc_taichi.pyxel import nonlinear_ipc  # noqa: E402
 
 CVF, N = 3.0e-6, 15
+FIGURE = os.path.join(os.path.dirname(os.path.abspath(__file__)), "pyxel_issue65.png")
 
 
 def neighbour_fraction(model, charge, background):
@@ -40,7 +41,7 @@ def neighbour_fraction(model, charge, background):
     return (out[N // 2, N // 2 + 1] - background) / charge
 
 
-def main(path=os.path.join(os.path.dirname(os.path.abspath(__file__)), "pyxel_issue65.png")):
+def main(path=FIGURE):
     warnings.simplefilter("ignore", DeprecationWarning)  # Pyxel 3.0.2's own
     q = np.geomspace(1e3, 1e5, 25)
     # the paper's alpha for a 20000 e- pixel beside an empty one
