@@ -39,6 +39,7 @@ from .products import decouple_file
 from .products.options import ProductOptions
 from .runtime import THREADS_ENV
 from .tiling import decouple_blocks, halo_for, tile_maxima
+from .workers import cap_worker_threads
 
 __all__ = ["local_client", "decouple_files", "decouple_stack", "decouple_mosaic",
            "FileResult", "worker_threads"]
@@ -74,8 +75,6 @@ def local_client(scheduler=None, workers=None, memory_limit="auto", gpus=None,
             raise IPCInputError("give either a scheduler address or a scheduler file")
         if scheduler_file and not os.path.isfile(scheduler_file):
             raise IPCInputError(f"--scheduler-file {scheduler_file}: no such file")
-        from .workers import cap_worker_threads
-
         client = Client(scheduler, scheduler_file=scheduler_file)
         cap_worker_threads(client)
         return client

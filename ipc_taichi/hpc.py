@@ -24,6 +24,7 @@ import os
 import sys
 
 from .errors import IPCInputError
+from .products import written_by_ipc_taichi
 from .runtime import THREADS_ENV
 
 __all__ = ["available_cores", "read_file_list", "already_decoupled", "thread_caps",
@@ -79,8 +80,6 @@ def already_decoupled(path):
     """Whether ``path`` is an output this tool decoupled: its provenance
     (FITS ``IPCOP``, Roman ``meta.ipc_taichi``) says ``decouple``. Outputs are
     written to a temporary file and renamed, so such a file is complete."""
-    from .products import written_by_ipc_taichi
-
     return written_by_ipc_taichi(path, operation="decouple")
 
 

@@ -33,6 +33,8 @@ edge). Away from the outermost pixel ring a constant law (``law="constant:0.01"`
 import numpy as np
 
 from . import iteration
+from .coupling import couple
+from .decoupling import decouple
 from .model import CouplingModel
 
 __all__ = ["nonlinear_ipc", "decouple_ipc", "science_region"]
@@ -101,8 +103,6 @@ def nonlinear_ipc(detector, law=None, model=None, geometry=None, edge=None,
     reference_pixels : "detector", int or None
         See the module docstring.
     """
-    from .coupling import couple
-
     coupling = CouplingModel.resolve(law, geometry, edge, model=model)
     charge = np.asarray(detector.pixel.array, dtype=np.float64)
     region = _region(detector, reference_pixels)
@@ -122,8 +122,6 @@ def decouple_ipc(detector, law=None, model=None, geometry=None, edge=None,
     (dim ``time``). The detector's buckets are not changed.
     """
     import xarray as xr
-
-    from .decoupling import decouple
 
     coupling = CouplingModel.resolve(law, geometry, edge, model=model)
     charge = np.asarray(detector.signal.array, dtype=np.float64) / _volts_per_electron(detector)

@@ -13,6 +13,7 @@ import os
 
 from distributed.diagnostics.plugin import WorkerPlugin
 
+from . import runtime
 from .hpc import thread_caps, worker_facts
 from .runtime import THREADS_ENV
 
@@ -29,8 +30,6 @@ def _set_threads(threads):
 def taichi_threads():
     """On a worker: the thread cap of its running Taichi runtime
     (``cpu_max_num_threads``), or ``None`` before its first task."""
-    from . import runtime
-
     if runtime.current() is None:
         return None
     import taichi as ti

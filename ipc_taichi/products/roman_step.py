@@ -41,6 +41,7 @@ from .. import __version__, iteration
 from ..model import CouplingModel
 from .hooks import configured_subclass
 from .options import ProductOptions
+from .roman import process_asdf
 
 __all__ = ["RomanIPCTaichiStep", "roman_configured_step"]
 
@@ -101,8 +102,6 @@ class RomanIPCTaichiStep(Step):
 
     def process(self, step_input):
         """Decouple the model as ``ipc-taichi decouple`` decouples its file."""
-        from . import process_asdf
-
         if self.gain is None:
             raise ValueError("roman_ipc_taichi: give the gain in e-/DN (gain=...)")
         coupling = self.coupling()
