@@ -35,11 +35,13 @@ from .bondmap import BondMap
 from .decoupling import decouple
 from .errors import IPCInputError
 from .gpus import gpu_cluster
+from .hpc import already_decoupled, available_cores
 from .model import CouplingModel
 from .products import decouple_file
 from .products.options import ProductOptions
 from .runtime import THREADS_ENV
 from .tiling import decouple_blocks, halo_for, tile_maxima
+from .workers import cap_worker_threads
 
 __all__ = ["local_client", "decouple_files", "decouple_stack", "decouple_mosaic",
            "FileResult", "worker_threads"]
@@ -47,13 +49,17 @@ __all__ = ["local_client", "decouple_files", "decouple_stack", "decouple_mosaic"
 
 def worker_threads(workers, cores=None):
     """Taichi CPU threads per worker so that ``workers`` of them add up to the
-    ``cores`` (default: this machine's): ``cores // workers``, at least 1."""
-    cores = int(cores or os.cpu_count() or 1)
+    ``cores`` (default: this process's, :func:`ipc_taichi.hpc.available_cores`:
+    ``$SLURM_CPUS_PER_TASK`` in a Slurm job): ``cores // workers``, at least 1."""
+    cores = int(cores or available_cores())
     return max(1, cores // max(1, int(workers)))
 
 
-def local_client(scheduler=None, workers=None, memory_limit="auto", gpus=None):
-    """A ``distributed.Client``: to ``scheduler`` (an address) if given; else,
+def local_client(scheduler=None, workers=None, memory_limit="auto", gpus=None,
+                 scheduler_file=None):
+    """A ``distributed.Client``: to ``scheduler`` (an address) or
+    ``scheduler_file`` (a Dask scheduler file) if given, whose workers get
+    capped Taichi pools (:func:`ipc_taichi.workers.cap_worker_threads`); else,
     with ``gpus`` (a list of GPU ids, empty for every visible GPU), to a new
     cluster of one single-threaded worker per GPU
     (:func:`ipc_taichi.gpus.gpu_cluster`); else to a new ``LocalCluster`` of
@@ -66,15 +72,21 @@ def local_client(scheduler=None, workers=None, memory_limit="auto", gpus=None):
     # Dask logs worker starts, stops and failed tasks; the command line reports
     # each failed file itself, in one line
     logging.getLogger("distributed").setLevel(logging.CRITICAL)
-    if scheduler:
-        return Client(scheduler)
+    if scheduler or scheduler_file:
+        if scheduler and scheduler_file:
+            raise IPCInputError("give either a scheduler address or a scheduler file")
+        if scheduler_file and not os.path.isfile(scheduler_file):
+            raise IPCInputError(f"--scheduler-file {scheduler_file}: no such file")
+        client = Client(scheduler, scheduler_file=scheduler_file)
+        cap_worker_threads(client)
+        return client
     if gpus is not None:
         client = Client(gpu_cluster(list(gpus) or None))
         client._ipc_taichi_owns_cluster = True
         return client
     import dask
 
-    workers = int(workers or min(4, os.cpu_count() or 1))
+    workers = int(workers or min(4, available_cores()))
     # a task whose worker dies is retried once on another worker, then failed
     # (the default, 3, would let one bad file kill four workers)
     with dask.config.set({"distributed.scheduler.allowed-failures": 1}):
@@ -122,7 +134,8 @@ def _task_options(options, model):
     return coupling, product
 
 
-def decouple_files(pairs, options, client, progress=None, task=None, model=None):
+def decouple_files(pairs, options, client, progress=None, task=None, model=None,
+                   skip_existing=False):
     """Decouple ``(input, output)`` pairs on ``client``'s workers.
 
     Parameters
@@ -144,6 +157,10 @@ def decouple_files(pairs, options, client, progress=None, task=None, model=None)
         :func:`ipc_taichi.products.decouple_file`.
     model : CouplingModel or str, optional
         The coupling model (or a model file), instead of ``options["model"]``.
+    skip_existing : bool, optional
+        An existing output this tool decoupled
+        (:func:`ipc_taichi.hpc.already_decoupled`) is not redone: its result is
+        ``ok`` and ``skipped``; any other existing output is refused as without it.
 
     Returns
     -------
@@ -164,6 +181,11 @@ def decouple_files(pairs, options, client, progress=None, task=None, model=None)
     options = dict(coupling, options=product.replace(overwrite=True))
     futures = {}
     for k, (src, dst) in enumerate(pairs):
+        if skip_existing and already_decoupled(dst):
+            results[k] = FileResult(input=src, output=dst, ok=True, skipped=True)
+            if progress is not None:
+                progress(results[k])
+            continue
         if not overwrite and os.path.exists(dst):
             results[k] = FileResult(input=src, output=dst, ok=False,
                                     error=f"{dst}: exists (use --overwrite to replace it)")

@@ -22,7 +22,9 @@ LAW = ("--law", "donlon2018")
 _EXTRA = {"torch": "torch", "roman_datamodels": "ipc_taichi[roman]", "asdf": "ipc_taichi[roman]",
           "jwst": "ipc_taichi[jwst]", "stdatamodels": "ipc_taichi[jwst]",
           "stpipe": "ipc_taichi[jwst]", "solid_waffle": "solid-waffle",
-          "galsim": "galsim", "hypothesis": "hypothesis"}
+          "galsim": "galsim", "hypothesis": "hypothesis",
+          "dask_jobqueue": "ipc_taichi[hpc]", "pyxel": "ipc_taichi[pyxel]",
+          "romancal": "ipc_taichi[roman-pipeline]"}
 
 
 def optional(module):

@@ -26,10 +26,12 @@ import sys
 import time
 
 from ..errors import IPCInputError
+from ..hpc import available_cores
 from ..products import ProductOptions, couple_file, decouple_file, written_by_ipc_taichi
 from ..products.missions import DEFAULT_DQ
 from ..progress import terminal_progress
 from .commands import one_line
+from .many import add_cluster_arguments, many_paths, report_skipped_only, skip_one, split_done
 from .options import (
     add_iteration_arguments,
     add_model_arguments,
@@ -104,7 +106,7 @@ def add_parsers(sub):
     for name in ("couple", "decouple"):
         helptext = one_line(name)
         p = sub.add_parser(name, help=helptext, description=f"{helptext}. {common}")
-        p.add_argument("paths", nargs="+", metavar="IN.fits",
+        p.add_argument("paths", nargs="*" if name == "decouple" else "+", metavar="IN.fits",
                        help="IN.fits OUT.fits, IN.fits --output OUT.fits"
                        + (", or with -o: one or more inputs" if name == "decouple" else ""))
         p.add_argument("--output", default=None, metavar="OUT.fits",
@@ -120,13 +122,15 @@ def add_parsers(sub):
                            help="added to each input's name in OUTDIR (default _decoupled)")
             m.add_argument("--scheduler", default=None, metavar="ADDRESS",
                            help="Dask scheduler to run on (default: a local cluster)")
+            add_cluster_arguments(m)
             m.add_argument("--gpus", default=None, metavar="all|ID,ID",
                            help="run on a local cluster of one single-threaded worker per GPU, "
                                 "each seeing only its own (CUDA_VISIBLE_DEVICES): 'all' or a "
                                 "list of GPU ids; see docs/performance.md for clusters")
             m.add_argument("--workers", type=int, default=None,
                            help="worker processes of the local cluster, >= 1 (default: "
-                                "min(files, CPU cores))")
+                                "min(files, CPUs: $SLURM_CPUS_PER_TASK in a Slurm job, "
+                                "else this process's))")
             m.add_argument("--tile", type=int, default=None, metavar="N",
                            help="decouple tile by tile (N x N cores plus a halo) through "
                                 "memory maps; exact")
@@ -248,12 +252,15 @@ def output_name(input_path, output_dir, suffix):
 
 def run_decouple(args):
     model = model_from_args(args)  # bad model options are usage errors, found before any work
+    args.paths = many_paths(args)
     if args.workers is not None and args.workers < 1:
         raise IPCInputError(f"--workers {args.workers}: needs at least 1 worker")
     if args.tile is not None and args.tile < 1:
         raise IPCInputError(f"--tile {args.tile}: needs N >= 1")
     if args.output_dir is None:
         src, dst = _single_pair(args, "decouple")
+        if skip_one(args, src, dst):
+            return 0
         with _progress(args, "decouple") as bar:
             summary = decouple_file(src, dst, model=model,
                                     options=_product_options(args).replace(progress=bar))
@@ -269,6 +276,7 @@ def run_decouple(args):
         raise IPCInputError(f"{args.output_dir}: cannot create the output directory "
                             f"({exc.strerror})") from None
     pairs = [(p, output_name(p, args.output_dir, args.suffix)) for p in args.paths]
+    pairs, skipped = split_done(pairs, args)
     seen = {}
     for src, dst in pairs:
         if dst in seen:
@@ -276,7 +284,9 @@ def run_decouple(args):
         if os.path.exists(src) and os.path.exists(dst) and os.path.samefile(src, dst):
             raise IPCInputError(f"{src}: would be overwritten by its own output")
         seen[dst] = src
-    return _run_many(pairs, args, model)
+    if not pairs:
+        return report_skipped_only(skipped, args)
+    return _run_many(pairs, args, model, skipped)
 
 
 def _absolute_files(options):
@@ -302,7 +312,7 @@ def _remove_temporaries(pairs, since):
                 pass
 
 
-def _run_many(pairs, args, model):
+def _run_many(pairs, args, model, skipped=0):
     """Decouple many files; one line per failure; exit code 1 if any failed."""
     show = not args.quiet and sys.stderr.isatty()
     bar = None
@@ -323,7 +333,7 @@ def _run_many(pairs, args, model):
     options = {"model": model, "options": _absolute_files(_product_options(args))}
     since = time.time() - 1
     try:
-        if len(pairs) == 1 and not args.scheduler:
+        if len(pairs) == 1 and not (args.scheduler or args.scheduler_file):
             results = []
             for src, dst in pairs:  # no cluster for a single file
                 res = {"input": src, "output": dst}
@@ -338,7 +348,7 @@ def _run_many(pairs, args, model):
         else:
             from ..cluster import close_client, decouple_files, local_client
 
-            workers = args.workers or min(len(pairs), os.cpu_count() or 1)
+            workers = args.workers or min(len(pairs), available_cores())
             gpus = None if args.gpus is None else (
                 [] if args.gpus.strip() == "all" else
                 [g.strip() for g in args.gpus.split(",") if g.strip()])
@@ -354,7 +364,8 @@ def _run_many(pairs, args, model):
                 res.update(input=src, output=dst)
                 report(res)
 
-            client = local_client(args.scheduler, workers, gpus=gpus)
+            client = local_client(args.scheduler, workers, gpus=gpus,
+                                  scheduler_file=args.scheduler_file)
             try:
                 results = decouple_files(sent, options, client, progress=as_given)
             finally:
@@ -373,5 +384,6 @@ def _run_many(pairs, args, model):
     for r in results:
         code = max(code, _report(r, r["input"]))
     if not args.quiet:
-        print(f"decoupled {len(results)} files into {args.output_dir}", file=sys.stderr)
+        print(f"decoupled {len(results)} files into {args.output_dir}"
+              + (f" ({skipped} skipped: already decoupled)" if skipped else ""), file=sys.stderr)
     return code

@@ -64,9 +64,10 @@ def couple_file(input_path, output_path, model=None, options=None, **kwargs):
                            **kwargs)
 
 
-def written_by_ipc_taichi(path):
+def written_by_ipc_taichi(path, operation=None):
     """Whether ``path`` is a product this tool wrote: a FITS file whose primary
-    header has ``IPCOP``, or an ASDF file with ``meta.ipc_taichi``."""
+    header has ``IPCOP``, or an ASDF file with ``meta.ipc_taichi`` (and, given
+    ``operation``, whether that operation is ``"couple"``/``"decouple"``)."""
     from astropy.io import fits
 
     try:
@@ -77,7 +78,10 @@ def written_by_ipc_taichi(path):
 
                 with asdf.open(path, lazy_load=True, memmap=False) as af:
                     meta = af.tree.get("roman", {}).get("meta", {})
-                    return "ipc_taichi" in meta
-            return "IPCOP" in fits.getheader(path, 0)
+                    record = meta.get("ipc_taichi")
+                    return record is not None and (
+                        operation is None or record.get("operation") == operation)
+            header = fits.getheader(path, 0)
+            return "IPCOP" in header and operation in (None, header["IPCOP"])
     except Exception:
         return False

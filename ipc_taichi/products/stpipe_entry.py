@@ -1,6 +1,7 @@
 """The ``stpipe.steps`` entry point: lets ``strun ipc_taichi`` and
 ``strun calwebb_detector1_taichi`` find the classes of
-:mod:`ipc_taichi.products.jwst_step` by alias (registered in
+:mod:`ipc_taichi.products.jwst_step` (and ``strun roman_ipc_taichi`` the Roman step of
+:mod:`ipc_taichi.products.roman_step`) by alias (registered in
 ``pyproject.toml``). It names them without importing ``jwst``, so the
 ``strun`` command stays quick, as ``stpipe`` asks of its plugins."""
 
@@ -13,4 +14,5 @@ def get_steps():
         ("ipc_taichi.products.jwst_step.IPCTaichiStep", "ipc_taichi", False),
         ("ipc_taichi.products.jwst_step.Detector1TaichiPipeline", "calwebb_detector1_taichi",
          True),
+        ("ipc_taichi.products.roman_step.RomanIPCTaichiStep", "roman_ipc_taichi", False),
     ]
