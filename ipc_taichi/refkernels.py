@@ -46,8 +46,9 @@ Kernels -> model
 (:func:`law_from_forward_kernel`: alpha the mean of the four nearest entries,
 weights the kernel over alpha); the map is
 :func:`ipc_taichi.bondmap.bonds_from_kernels` of the scatter kernels, divided
-by its median, so the law is the constant ``alpha x median`` (the typical
-coupling) and the map's median is 1. Kernels identical at every pixel give
+by its median (over the bonds that couple at all: reference pixels whose
+kernel is a delta do not), so the law is the constant ``alpha x median`` (the
+typical coupling) and the map's median is 1. Kernels identical at every pixel give
 no map (the uniform model).
 
 Model -> kernels
@@ -67,7 +68,7 @@ from .geometry import Geometry
 from .laws import constant
 from .model import CouplingModel
 
-__all__ = ["DEFAULT_SIGNAL", "GRID", "invert_kernels", "law_from_forward_kernel",
+__all__ = ["DEFAULT_SIGNAL", "GRID", "NOISE", "invert_kernels", "law_from_forward_kernel",
            "scatter_kernels", "rows_from_scatter", "scatter_from_rows", "model_from_kernels",
            "is_uniform"]
 
@@ -79,6 +80,10 @@ GRID = 8
 """Side of the periodic grid on which a 3x3 kernel is inverted, per pixel of
 its half-size (5x5: 16): the inverse's terms that wrap around are of order
 ``alpha^7``, negligible."""
+
+NOISE = 1e-4
+"""Kernel entries below this fraction of alpha are noise (a float32 file's
+rounding is ~1e-6 of alpha; real diagonal coupling ~0.1 alpha)."""
 
 _CHUNK = 4_000_000  # grid points inverted at once (64 MB of complex numbers)
 
@@ -129,8 +134,8 @@ def invert_kernels(kernels, size=None):
 
 def law_from_forward_kernel(kernel, name):
     """``(law, geometry)`` of one forward kernel: the constant alpha = the mean
-    of the four nearest entries, the geometry the kernel over alpha (negative
-    far entries, noise, carry no coupling)."""
+    of the four nearest entries, the geometry the kernel over alpha (entries
+    below :data:`NOISE` alpha, negative ones included, carry no coupling)."""
     k = np.asarray(kernel, dtype=np.float64)
     if k.ndim != 2 or k.shape[0] != k.shape[1] or k.shape[0] not in (3, 5):
         raise IPCInputError(f"{name}: an IPC kernel must be 3x3 or 5x5, got shape {k.shape}")
@@ -139,7 +144,8 @@ def law_from_forward_kernel(kernel, name):
     if not alpha > 0:
         raise IPCInputError(f"{name}: the kernel's nearest entries are not positive "
                             f"(alpha {alpha:.3g}); not a forward IPC kernel")
-    return constant(alpha), Geometry.from_kernel(np.where(k < 0, 0.0, k), alpha)
+    noise = k < NOISE * alpha  # negative or negligible far entries carry no coupling
+    return constant(alpha), Geometry.from_kernel(np.where(noise, 0.0, k), alpha)
 
 
 def is_uniform(kernels):
@@ -219,10 +225,12 @@ def scatter_kernels(model, signal=DEFAULT_SIGNAL, shape=None, pad=0):
 
 
 def _mean_kernel(k):
-    """The mean kernel, each ``{u, -u}`` pair averaged over the same bonds (the
-    two ends of every bond inside the frame), so that a map does not make a
-    symmetric coupling look lopsided (the bonds at the frame's two edges differ)."""
+    """The mean kernel, each ``{u, -u}`` pair averaged over the same bonds: those
+    inside the frame between two coupled pixels (:func:`_coupled`), so that a
+    map does not make a symmetric coupling look lopsided (the bonds at the
+    frame's two edges differ; reference pixels couple to nothing)."""
     cy, cx = k.shape[0] // 2, k.shape[1] // 2
+    coupled = _coupled(k)
     mean = np.zeros(k.shape[:2])
     for j in range(k.shape[0]):
         for i in range(k.shape[1]):
@@ -231,10 +239,25 @@ def _mean_kernel(k):
                 continue
             fwd = k[j, i]                                   # K_p(u), the bond p -- p+u
             back = _shifted(k[cy - uy, cx - ux], uy, ux)    # K_{p+u}(-u), the same bond
-            both = np.isfinite(fwd) & np.isfinite(back)
+            both = (np.isfinite(fwd) & np.isfinite(back) & coupled
+                    & _shifted(coupled.astype(float), uy, ux, fill=0.0).astype(bool))
             if both.any():
                 mean[j, i], mean[cy - uy, cx - ux] = fwd[both].mean(), back[both].mean()
     return mean
+
+
+def _coupled(k, floor=1e-6):
+    """Pixels that both give and receive charge (sums of ``|K|`` above ``floor``,
+    unknown entries left out): not a reference pixel whose kernel is a delta."""
+    cy, cx = k.shape[0] // 2, k.shape[1] // 2
+    give = np.zeros(k.shape[2:])
+    take = np.zeros(k.shape[2:])
+    for j in range(k.shape[0]):
+        for i in range(k.shape[1]):
+            if (j, i) != (cy, cx):
+                give += np.nan_to_num(np.abs(k[j, i]))
+                take += np.nan_to_num(np.abs(_shifted(k[j, i], cy - j, cx - i)))  # K_{p-d}(d)
+    return (give > floor) & (take > floor)
 
 
 def _fill_leaving(raw, k):
@@ -282,7 +305,8 @@ def model_from_kernels(scatter, name, edge="zero", law=None):
     alpha0 = float(base.alpha(0.0, 0.0))
     raw, error = bonds_from_kernels(k, geometry, alpha0)
     raw = BondMap(raw.offsets, _fill_leaving(raw, k))
-    median = float(np.median(raw.values))
+    coupled = raw.values[raw.values > 0]  # not the bonds of uncoupled (reference) pixels
+    median = float(np.median(coupled)) if coupled.size else 0.0
     if not median > 0:
         raise IPCInputError(f"{name}: the kernels' median coupling is not positive")
     values = raw.values / median

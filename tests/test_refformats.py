@@ -287,3 +287,31 @@ def test_calibrate_reference_of_a_4d_file_without_our_model(cli, tmp_path):
     assert np.abs(ratio - 1)[inside(model)].max() < 20 * 0.008 ** 2
     report = json.loads((tmp_path / "r.json").read_text())
     assert "4-D" in report["reference"]["kind"] and report["reference"]["map"]["max"] > 1.05
+
+
+@pytest.mark.parametrize("border", ["zero", "delta"])
+def test_jwst_4d_with_reference_pixel_kernels(tmp_path, border):
+    """A 4-D file whose reference-pixel kernels are all zero (no inverse: unknown)
+    or the identity (no coupling): the science pixels' map is read to the rule's
+    error all the same, and the law is the science pixels' typical coupling."""
+    alpha, n = 0.01, 40
+    model = map_model(f"constant:{alpha}", shape=(n, n), geometry=Geometry.terms())
+    written = tmp_path / "ours.fits"
+    write_reference(model, written, "jwst")
+    with fits.open(written) as hdul:
+        primary, sci = hdul[0].copy(), np.array(hdul["SCI"].data)
+    ref = np.ones((n, n), dtype=bool)
+    ref[4:-4, 4:-4] = False
+    sci[:, :, ref] = 0.0
+    if border == "delta":
+        sci[1, 1, ref] = 1.0
+    path = tmp_path / f"{border}.fits"
+    fits.HDUList([primary, fits.ImageHDU(sci, name="SCI")]).writeto(path)
+    back, info = read_model(path)
+    assert np.isfinite(back.bonds.values).all()
+    ratio = coupling(back) / coupling(model)
+    science = np.zeros_like(ratio, dtype=bool)
+    science[:, 5:-6, 5:-6] = True  # both ends of every bond in the science region
+    assert np.abs(ratio - 1)[science].max() < 20 * alpha ** 2
+    if border == "delta":  # a bond to an uncoupled pixel: its two ends disagree, said
+        assert info["map"]["rule_error_max"] > 0.3
