@@ -121,8 +121,7 @@ def _read_fits(path, law, kept):
         if hdu.data is None:
             raise IPCInputError(f"{path}[SCI]: no kernel")
         kernel = np.asarray(hdu.data, dtype=np.float64)
-        doc = (json.loads(bytes(np.asarray(hdul[MODEL_EXT].data, dtype=np.uint8)).decode())
-               if kept and MODEL_EXT in hdul else None)
+        doc = _kept_json(hdul, path) if kept and MODEL_EXT in hdul else None
         values = (np.asarray(hdul[BONDS_EXT].data, dtype=np.float64)
                   if doc is not None and BONDS_EXT in hdul else None)
     if doc is not None:
@@ -143,6 +142,15 @@ def _read_fits(path, law, kept):
     model, info = model_from_kernels(scatter_from_rows(rows), path, "zero", law)
     return model, {"kind": "jwst_ipc 4-D (inverse kernels per destination pixel, each "
                            "inverted here)", "shape": list(kernel.shape), **info}
+
+
+def _kept_json(hdul, path):
+    """The kept model's document in a FITS file's ``IPCMODEL`` extension."""
+    try:
+        return json.loads(bytes(np.asarray(hdul[MODEL_EXT].data, dtype=np.uint8)).decode())
+    except (ValueError, TypeError) as exc:
+        raise IPCInputError(f"{path}[{MODEL_EXT}]: not the JSON of a coupling model "
+                            f"({type(exc).__name__})") from None
 
 
 def _check_4d(kernel, label):
@@ -280,6 +288,10 @@ def write_reference(model, path, fmt, signal=DEFAULT_SIGNAL, overwrite=False, sh
             if model.geometry.reach > 1:
                 raise IPCInputError("an IPC4D file holds 3x3 kernels; this model's geometry "
                                     f"reaches {model.geometry.reach} pixels")
+            if model.bonds is not None and shape is not None and \
+                    tuple(shape) != tuple(model.bonds.shape):
+                raise IPCInputError(f"--shape {shape[0]} {shape[1]}: the model's map is "
+                                    f"{model.bonds.shape[0]}x{model.bonds.shape[1]}")
             data = scatter_kernels(model, signal, shape or IPC4D_SHAPE)
         _write_asdf(path, data.astype(np.float32), doc, values, overwrite, fmt)
     return {"format": fmt, "kernel_shape": list(data.shape), "signal_e": float(signal),

@@ -315,3 +315,15 @@ def test_jwst_4d_with_reference_pixel_kernels(tmp_path, border):
     assert np.abs(ratio - 1)[science].max() < 20 * alpha ** 2
     if border == "delta":  # a bond to an uncoupled pixel: its two ends disagree, said
         assert info["map"]["rule_error_max"] > 0.3
+
+
+def test_a_damaged_kept_model_is_named(tmp_path):
+    model = map_model(shape=(8, 10))
+    path = tmp_path / "ref.fits"
+    write_reference(model, path, "jwst")
+    with fits.open(path, mode="update") as hdul:
+        hdul["IPCMODEL"].data[:5] = 0
+    with pytest.raises(IPCInputError, match=r"ref.fits\[IPCMODEL\]: not the JSON"):
+        read_model(path)
+    back, _ = read_model(path, kept=False)  # the kernels are still read
+    assert back.bonds.shape == (8, 10)
