@@ -97,7 +97,7 @@ def invert_kernels(kernels, size=None):
         Odd-sized kernels, centre at ``(ky//2, kx//2)``.
 
     size : int, optional
-        The periodic grid's side (default :data:`GRID` per pixel of half-size).
+        The periodic grid's side, even (default :data:`GRID` per pixel of half-size).
 
     Returns
     -------
@@ -108,7 +108,7 @@ def invert_kernels(kernels, size=None):
     if k.ndim == 2:
         return invert_kernels(k[:, :, None, None], size)[:, :, 0, 0]
     ky, kx = k.shape[:2]
-    size = GRID * max(ky // 2, kx // 2, 1) if size is None else int(size)
+    size = GRID * max(ky // 2, kx // 2, 1) if size is None else int(size) + int(size) % 2  # even
     if ky % 2 == 0 or kx % 2 == 0 or max(ky, kx) > size // 2:
         raise IPCInputError(f"an IPC kernel must have odd sides up to {size // 2 - 1}, "
                             f"got {ky}x{kx}")
@@ -116,9 +116,11 @@ def invert_kernels(kernels, size=None):
     # kernel is (forward) and where its cut inverse is wanted (back), in real
     # arithmetic: four small matrix products per block of pixels
     oy, ox = np.divmod(np.arange(ky * kx), kx)
-    fy, fx = np.divmod(np.arange(size * size), size)
+    half = size // 2 + 1  # a real kernel's spectrum: the other half is its conjugate
+    fy, fx = np.divmod(np.arange(size * half), half)
     theta = 2 * np.pi * (np.outer(fy, oy - ky // 2) + np.outer(fx, ox - kx // 2)) / size
     cos, sin = np.cos(theta), np.sin(theta)
+    twice = np.where((fx == 0) | (fx == size // 2), 1.0, 2.0)[:, None]  # counted once, twice
     flat = k.reshape(ky * kx, -1)
     out = np.empty_like(flat)
     step = max(1, _CHUNK // (size * size))
@@ -128,7 +130,7 @@ def invert_kernels(kernels, size=None):
         with np.errstate(divide="ignore", invalid="ignore"):  # a zero kernel: NaN, said
             power = re * re + im * im
             re, im = re / power, -im / power        # its reciprocal
-        out[:, p0:p0 + step] = (cos.T @ re - sin.T @ im) / (size * size)
+        out[:, p0:p0 + step] = (cos.T @ (twice * re) - sin.T @ (twice * im)) / (size * size)
     return out.reshape(k.shape)
 
 
