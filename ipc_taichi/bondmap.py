@@ -186,6 +186,20 @@ class BondMap:
         the tile with its halo."""
         return BondMap(self.offsets, self.values[:, y0:y0 + ny, x0:x0 + nx])
 
+    def for_region(self, region, frame, label):
+        """The map of the science region ``region`` (a ``(y, x)`` pair of slices)
+        of a frame of shape ``frame``: this map if it is the region's size, cut
+        from it if it is the whole frame's (a pipeline's reference file covers
+        the detector, reference pixels included); else one line naming ``label``."""
+        science = tuple(s.stop - s.start for s in region)
+        if tuple(self.shape) == science:
+            return self
+        if tuple(self.shape) == tuple(frame):
+            return self.crop(region[0].start, region[1].start, *science)
+        raise IPCInputError(f"{label}: the model's bond map is {self.shape[0]}x{self.shape[1]} "
+                            f"(ny x nx), the science region {science[0]}x{science[1]} (of a "
+                            f"{frame[0]}x{frame[1]} frame)")
+
     def max_factor(self):
         """The largest bond factor (the convergence bound scales with it)."""
         return float(self.values.max()) if self.values.size else 1.0

@@ -24,8 +24,9 @@ The steps are those of a detector laboratory:
    forward simulators may use and ``decouple`` never does; the report
    (:mod:`.report`) says what was measured, assumed and not measured.
 
-A reference file (:mod:`.reffiles`) alone gives a constant law; with
-measurements it is reported beside them for comparison.
+A reference file (:mod:`.reffiles`) alone gives its model (a constant law, and
+the detector's map for a per-pixel file); with measurements it is reported
+beside them for comparison.
 """
 
 import datetime
@@ -427,9 +428,10 @@ def calibrate(darks=(), flats=(), reference=None, output=None, *, report_path=No
     if bf_likely:
         effects["brighter_fatter"].update(likely=True, note=bf_likely)
     use_frames = bf_likely is None
-    ref = None
-    if reference is not None:
-        law_ref, geo_ref, info = reffiles.read_reference(reference)
+    ref, ref_model = None, None
+    if reference is not None:  # with its map, if any (reffiles)
+        ref_model, info = reffiles.read_reference_model(reference)
+        law_ref, geo_ref = ref_model.law, ref_model.geometry
         ref = {"file": reference, "law": law_ref.describe(), "geometry": geo_ref.describe(),
                **info}
 
@@ -451,11 +453,13 @@ def calibrate(darks=(), flats=(), reference=None, output=None, *, report_path=No
                                 + "; ".join(not_measured) + ")")
         law, geometry = law_ref, geo_ref
         fit = {"chosen": "reference file", "law": law.describe(), "assumed": [
-            "the reference file's constant kernel (no signal dependence)"]}
+            "the reference file's kernels at every signal" if "kept" not in info["kind"]
+            else "the model kept in the reference file"]}
     elif hot.integrations:
         transfer_check = transfer.held_out_residuals(hot.integrations, hot.events, hot.bins,
                                                      points_for(None)[1], fit["chosen"])
-    model = CouplingModel.resolve(law, geometry, "zero")
+    model = (ref_model if fit["chosen"] == "reference file"
+             else CouplingModel.resolve(law, geometry, "zero"))
     nl_ipc = _nonlinear_ipc(fit, effects.pop("flat_ramp_nonlinear_ipc"), transfer_check)
     provenance = {"software": f"ipc_taichi {__version__}", "command": "calibrate",
                   "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),

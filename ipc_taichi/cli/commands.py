@@ -23,6 +23,8 @@ COMMANDS = {
     "simulate-lab": ("discover", "write a lab file (SCENE/MEASURED pairs) with hidden effects"),
     "calibrate": ("calibrate", "measure this detector's coupling: darks/flats/reference -> "
                                "MODEL.json"),
+    "export-reference": ("export", "write a coupling model as a pipeline's IPC reference "
+                                   "file (JWST ipc, Roman IPC, IPC4D): MODEL -> FILE"),
 }
 
 

@@ -544,11 +544,9 @@ def plan_array(facts, mission, model, options, zeroth=None):
                                         time_source=mission.time_source, coadds=coadds,
                                         gain_source=mission.gain_source)
     inner, reason = edge_of(model, options.edge, layout)
-    science = tuple(s.stop - s.start for s in layout.region)
-    if model.bonds is not None and tuple(model.bonds.shape) != science:
-        raise IPCInputError(f"{facts.label}: the model's bond map is {model.bonds.shape[0]}x"
-                            f"{model.bonds.shape[1]} (ny x nx), the science region "
-                            f"{science[0]}x{science[1]}")
+    if model.bonds is not None:  # the science region's map (one of the whole frame is cut)
+        inner = CouplingModel(inner.law, inner.geometry, inner.edge,
+                              inner.bonds.for_region(layout.region, shape2d, facts.label))
     pedestal = _pedestal(facts, options, gain, zeroth, layout)
     if pedestal is not None and options.tile:
         raise IPCInputError(f"{facts.label}: --tile cannot add the pedestal (zeroth read); run "
