@@ -27,7 +27,7 @@ from .errors import IPCInputError
 from .products import written_by_ipc_taichi
 from .runtime import THREADS_ENV
 
-__all__ = ["available_cores", "read_file_list", "already_decoupled", "thread_caps",
+__all__ = ["available_cores", "read_file_list", "already_decoupled", "thread_caps", "joining_cap",
            "worker_facts", "slurm_cluster",
            "SLURM_CPUS_ENV"]
 
@@ -116,6 +116,23 @@ def thread_caps(facts):
                 cores = int(slurm)
             caps[address] = max(1, cores // len(members))
     return caps
+
+
+def joining_cap(facts, workers_on_host):
+    """The cap of a worker that joins after the others were capped, from its own
+    :func:`worker_facts` and the number of workers the scheduler knows on its host
+    (itself included): a worker bound to fewer CPUs than its host has (``srun``,
+    ``taskset``) keeps its CPUs; one that sees every CPU shares them with the
+    host's workers; its own ``$IPC_TAICHI_THREADS`` is kept."""
+    _, cpus, own, slurm = facts
+    if own and own.isdigit() and int(own) > 0:
+        return int(own)
+    cores = len(cpus)
+    if slurm and slurm.isdigit() and 0 < int(slurm) < cores:
+        return int(slurm)
+    if cores < (os.cpu_count() or cores):
+        return cores
+    return max(1, cores // max(1, int(workers_on_host)))
 
 
 def slurm_cluster(cpus, memory, processes=None, walltime="01:00:00", queue=None,

@@ -14,7 +14,7 @@ import os
 from distributed.diagnostics.plugin import WorkerPlugin
 
 from . import runtime
-from .hpc import thread_caps, worker_facts
+from .hpc import joining_cap, thread_caps, worker_facts
 from .runtime import THREADS_ENV
 
 __all__ = ["cap_worker_threads", "TaichiThreadCap", "taichi_threads"]
@@ -40,8 +40,8 @@ def taichi_threads():
 class TaichiThreadCap(WorkerPlugin):
     """Caps the Taichi pool of every worker, also of those that join later
     (an adaptive cluster): ``caps`` for the workers known when it was
-    registered, ``default`` for the others (``None``: the CPUs of the worker
-    itself, as if it were alone on its host)."""
+    registered, ``default`` for those that join later (``None``:
+    :func:`ipc_taichi.hpc.joining_cap`, from the workers then on its host)."""
 
     name = "ipc-taichi-thread-cap"
 
@@ -49,10 +49,15 @@ class TaichiThreadCap(WorkerPlugin):
         self.caps = dict(caps)
         self.default = None if default is None else int(default)
 
-    def setup(self, worker):
+    async def setup(self, worker):
         cap = self.caps.get(worker.address, self.default)
-        if cap is None:
-            cap = thread_caps({worker.address: worker_facts()})[worker.address]
+        if cap is None:  # joined later: count the workers the scheduler knows on its host
+            try:
+                known = (await worker.scheduler.identity()).get("workers", {})
+                here = sum(1 for w in known.values() if w.get("host") == worker.ip)
+            except Exception:  # an older scheduler: as if alone
+                here = 1
+            cap = joining_cap(worker_facts(), max(1, here))
         _set_threads(cap)
 
 
@@ -61,7 +66,7 @@ def cap_worker_threads(client):
     that join later) before any of our tasks runs there: :func:`thread_caps`
     from each worker's :func:`worker_facts`. Returns ``address -> cap``."""
     caps = thread_caps(client.run(worker_facts))
-    client.register_plugin(TaichiThreadCap(caps, min(caps.values()) if caps else None))
+    client.register_plugin(TaichiThreadCap(caps))
     return client.run(_threads_env)
 
 

@@ -13,7 +13,13 @@ from astropy.io import fits
 
 from ipc_taichi.cluster import worker_threads
 from ipc_taichi.errors import IPCInputError
-from ipc_taichi.hpc import available_cores, read_file_list, slurm_cluster, thread_caps
+from ipc_taichi.hpc import (
+    available_cores,
+    joining_cap,
+    read_file_list,
+    slurm_cluster,
+    thread_caps,
+)
 from ipc_taichi.reference import couple_reference, decouple_reference
 from tests.helpers import CPU_ENV, optional, run_cli
 
@@ -66,6 +72,16 @@ def test_thread_caps_share_cpus_per_host():
     assert thread_caps(facts) == {"a": 4, "b": 4, "c": 4, "d": 4, "e": 3, "f": 2}
     many = {str(k): ("n", [0, 1], None, None) for k in range(5)}
     assert set(thread_caps(many).values()) == {1}
+
+
+def test_joining_cap(monkeypatch):
+    monkeypatch.setattr(os, "cpu_count", lambda: 8)
+    every = list(range(8))
+    assert joining_cap(("n", every, None, None), 4) == 2  # shares the host's CPUs
+    assert joining_cap(("n", every, None, None), 16) == 1
+    assert joining_cap(("n", [4, 5, 6], None, None), 4) == 3  # bound to its own CPUs
+    assert joining_cap(("n", every, "5", None), 4) == 5  # its own setting
+    assert joining_cap(("n", every, None, "2"), 1) == 2  # Slurm gave it 2
 
 
 def test_read_file_list(tmp_path):
@@ -212,6 +228,15 @@ def test_scheduler_file_two_external_workers_capped(tmp_path, rng):
         # capped: the workers of this host share its CPUs instead of each taking all
         cpus = len(os.sched_getaffinity(0))
         assert all(c == max(1, cpus // 2) for c in caps.values())
+        # a worker that joins now is capped by the plugin, counting the host's 3 workers
+        procs.append(_start(["distributed.cli.dask_worker", "--scheduler-file", str(sched),
+                             "--nthreads", "1", "--no-dashboard"], log))
+        with Client(scheduler_file=str(sched), timeout=60) as client:
+            client.wait_for_workers(3, timeout=60)
+            now = client.run(lambda: os.environ.get("IPC_TAICHI_THREADS"))
+            late = set(now) - set(caps)
+            assert len(late) == 1
+            assert now[late.pop()] == str(max(1, cpus // 3))
     finally:
         for p in reversed(procs):
             os.killpg(p.pid, signal.SIGTERM)
