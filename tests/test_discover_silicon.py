@@ -88,6 +88,7 @@ def test_silicon_diffusion_with_pinhole_spots_is_never_brighter_fatter(tmp_path_
     assert_complete(twin)
 
 
+@pytest.mark.slow
 def test_a_refused_choice_does_not_stop_the_search(tmp_path_factory):
     # GalSim's brighter-fatter plus diffusion with pinhole spots in pixel totals:
     # the brighter-fatter (the strongest candidate) is refused for its kernel,

@@ -1,0 +1,113 @@
+"""Ramps (``docs/discovery_format.md``, "Ramps"): read, simulated read by
+read, and the gap from increments, on files of an independent generator
+(``tests/independent/ramplab.py``: NumPy only, its own IPC, persistence,
+row noise and telegraph pixels). The module names no effect yet: these tests
+check that a null ramp is complete and that each hidden time-domain effect
+leaves the verdict incomplete with the words that point at it."""
+
+import numpy as np
+import pytest
+
+from ipc_taichi.discover import read_lab
+from ipc_taichi.discover.ramps import (
+    expected_reads,
+    ramp_gap,
+    read_ramps,
+    simulate_ramp,
+    write_ramps,
+)
+from ipc_taichi.errors import IPCInputError
+from tests.discover_helpers import write_hdus
+from tests.independent import ramplab
+
+
+def _ramp_file(tmp_path, seed, **hidden):
+    path = tmp_path / f"ramp{seed}.fits"
+    ramplab.make_file(str(path), seed=seed, **hidden)
+    return str(path)
+
+
+def test_ramp_file_round_trip_and_times(tmp_path):
+    rate = np.full((8, 8), 5.0)
+    reads = np.cumsum(np.full((4, 8, 8), 10.0), axis=0)
+    path = write_ramps(str(tmp_path / "r.fits"), [(rate, reads, 2.0)], readnoise=7.0,
+                       law="constant:0.01")
+    data = read_ramps(path)
+    assert data.readnoise == 7.0 and data.law == "constant:0.01"
+    (ramp,) = data.ramps
+    assert np.array_equal(ramp.times, [2.0, 4.0, 6.0, 8.0])  # TFIRST defaults to TFRAME
+    assert np.array_equal(ramp.reads, reads) and ramp.valid.all()
+    # the frame reader names the ramp reader instead of a bare shape error
+    with pytest.raises(IPCInputError, match="ramps reads it"):
+        read_lab(path)
+
+
+@pytest.mark.parametrize("keywords, data, match", [
+    ({}, np.zeros((3, 8, 8)), "needs TFRAME"),
+    ({"TFRAME": -1.0}, np.zeros((3, 8, 8)), "must be finite and > 0"),
+    ({"TFRAME": 1.0}, np.zeros((1, 8, 8)), "at least 2 reads"),
+    ({"TFRAME": 1.0}, np.zeros((3, 8, 6)), "is not OVERSAMP = 1 times"),
+])
+def test_bad_ramps_name_the_hdu(tmp_path, keywords, data, match):
+    path = write_hdus(tmp_path / "bad.fits", [("SCENE", 1, np.ones((8, 8))),
+                                              ("MEASURED", 1, data, keywords)], READNOIS=5.0)
+    with pytest.raises(IPCInputError, match=r"\[MEASURED,1\]|\[SCENE,1\]") as err:
+        read_ramps(path)
+    assert match in str(err.value)
+
+
+def test_expected_reads_grow_with_time_and_simulation_matches(tmp_path):
+    rate = np.full((16, 16), 50.0)
+    rate[8, 8] = 2000.0
+    reads = np.zeros((6, 16, 16))
+    data = read_ramps(write_ramps(str(tmp_path / "r.fits"), [(rate, reads, 3.0)], 8.0,
+                                  law="constant:0.0125"))
+    model, ramp = data.model(), data.ramps[0]
+    mean, shot, r = expected_reads(model, ramp)
+    assert r == pytest.approx(64.0)
+    # charge conserved by the coupling away from the edge, linear in time
+    assert mean[:, 6:11, 6:11].sum(axis=(1, 2)) == pytest.approx(
+        (rate[6:11, 6:11].sum()) * ramp.times, rel=2e-3)
+    assert np.all(np.diff(shot, axis=0) > 0)
+    sims = np.stack([simulate_ramp(model, ramp, np.random.default_rng(k)) for k in range(40)])
+    assert sims.mean(axis=0)[:, 8, 8] == pytest.approx(mean[:, 8, 8], rel=0.02)
+    # the increments' variance: the shot collected between reads plus two reads' noise
+    # (background pixels away from the hot one; the coupling keeps 0.9 of a
+    # pixel's own shot variance: (1 - 4 alpha)^2 + 4 alpha^2)
+    inc = np.diff(sims[:, :, 2:5, 2:14], axis=1)
+    assert inc.var(axis=0).mean() == pytest.approx(0.9 * 50.0 * 3.0 + 2 * 64.0, rel=0.1)
+    # and the neighbouring increments share one read's noise with opposite signs
+    lag = np.mean((inc[:, 1:] - inc[:, 1:].mean(0)) * (inc[:, :-1] - inc[:, :-1].mean(0)))
+    assert lag == pytest.approx(-64.0, abs=20.0)
+
+
+def test_null_ramp_is_complete(tmp_path):
+    stats = ramp_gap(_ramp_file(tmp_path, seed=301))
+    assert stats["complete"] is True and stats["unexplained"] == []
+    assert abs(stats["gap"] - 1.0) < 0.05
+
+
+def test_persistence_is_a_misfit_falling_with_time(tmp_path):
+    stats = ramp_gap(_ramp_file(tmp_path, seed=302, persistence=(0.002, 5.0)))
+    assert stats["complete"] is False
+    per_read = stats["gap_per_read"]
+    assert per_read[0] > 2 * per_read[-1]
+    assert "falling with time" in stats["unexplained"][0] and "persistence" in \
+        stats["unexplained"][0]
+
+
+def test_row_noise_is_correlated_along_x_only(tmp_path):
+    stats = ramp_gap(_ramp_file(tmp_path, seed=303, row_noise=6.0))
+    assert stats["complete"] is False
+    words = [u for u in stats["unexplained"] if "neighbours correlated" in u]
+    assert len(words) == 1 and "along x" in words[0] and "only" in words[0]
+    assert "correlated read noise" in words[0]
+    assert not any("telegraph" in u for u in stats["unexplained"])
+
+
+def test_telegraph_pixels_jump_and_return(tmp_path):
+    stats = ramp_gap(_ramp_file(tmp_path, seed=304, telegraph=(0.01, 80.0)))
+    assert stats["complete"] is False
+    assert stats["odd_pixels"]["count"] >= 5
+    assert any("telegraph" in u for u in stats["unexplained"]), stats["unexplained"]
+    assert not any("neighbours correlated" in u for u in stats["unexplained"])
