@@ -1,14 +1,18 @@
 """Ramps (``docs/discovery_format.md``, "Ramps"): read, simulated read by
 read, and the gap from increments, on files of an independent generator
 (``tests/independent/ramplab.py``: NumPy only, its own IPC, persistence,
-row noise and telegraph pixels). The module names no effect yet: these tests
-check that a null ramp is complete and that each hidden time-domain effect
-leaves the verdict incomplete with the words that point at it."""
+row noise, telegraph pixels and one-way steps). The statistics: a null ramp
+is complete and each hidden time-domain effect
+leaves the verdict incomplete with the words that point at it; the search
+(``ramp_search``) names persistence, correlated read noise and telegraph
+pixels, each at its truth, and refuses what contradicts them."""
 
 import numpy as np
 import pytest
 
 from ipc_taichi.discover import read_lab
+from ipc_taichi.discover.ramp_effects import ramp_contradiction, ramp_implausible
+from ipc_taichi.discover.ramp_search import discover_ramps
 from ipc_taichi.discover.ramps import (
     expected_reads,
     ramp_gap,
@@ -111,3 +115,70 @@ def test_telegraph_pixels_jump_and_return(tmp_path):
     assert stats["odd_pixels"]["count"] >= 5
     assert any("telegraph" in u for u in stats["unexplained"]), stats["unexplained"]
     assert not any("neighbours correlated" in u for u in stats["unexplained"])
+
+
+# -- naming the ramp effects (ipc_taichi.discover.ramp_search) ----------------
+
+def _search(tmp_path, seed, **hidden):
+    return discover_ramps(_ramp_file(tmp_path, seed, **hidden))
+
+
+def test_null_ramp_names_nothing(tmp_path):
+    report = _search(tmp_path, 311)
+    assert report["missing_effects"] == [] and report["complete"] is True
+
+
+def test_persistence_named_at_its_truth(tmp_path):
+    # the generator's after-image: 0.002 per s of a minute's earlier charge,
+    # tau 5 s; as a share of the template (SCENE x 16 s): 0.002 x 60 x 5 / 16
+    report = _search(tmp_path, 312, persistence=(0.002, 5.0))
+    assert report["missing_effects"] == ["persistence"]
+    p = report["final_model"]["effects"]["persistence"]
+    assert p["fraction"] == pytest.approx(0.0375, rel=0.15)
+    assert p["tau_s"] == pytest.approx(5.0, rel=0.2)
+    assert report["complete"] is True
+    assert report["steps"][0]["explained_fraction"] > 0.8
+
+
+def test_row_noise_named_correlated_read_noise(tmp_path):
+    report = _search(tmp_path, 313, row_noise=6.0)
+    assert report["missing_effects"] == ["correlated_read_noise"]
+    p = report["final_model"]["effects"]["correlated_read_noise"]
+    assert p["row_variance_e2"] == pytest.approx(36.0, rel=0.35)
+    assert p["column_variance_e2"] < 0.3 * p["row_variance_e2"]
+    assert report["complete"] is True
+
+
+def test_telegraph_pixels_named(tmp_path):
+    # 2 % of the pixels switch by 80 e- (about 5 sigma of an increment); with
+    # 1 %, the seed-314 file holds 4 detectable ones, fewer than 5 sigma above
+    # chance, and nothing is named
+    report = _search(tmp_path, 314, telegraph=(0.02, 80.0))
+    assert report["missing_effects"] == ["random_telegraph_noise"]
+    p = report["final_model"]["effects"]["random_telegraph_noise"]
+    assert 0.008 < p["fraction"] < 0.025
+    assert report["complete"] is True
+
+
+def test_one_way_steps_are_not_telegraph_noise(tmp_path):
+    # cosmic-ray-like steps: pixels off the model, but their level never returns
+    report = _search(tmp_path, 315, steps_up=(0.01, 150.0))
+    assert "random_telegraph_noise" not in report["missing_effects"]
+    assert "jump both ways" in report["not_named"]["random_telegraph_noise"]
+    assert report["complete"] is False
+    assert any(u.startswith("not named random_telegraph_noise") for u in report["unexplained"])
+
+
+def test_ramp_effect_contradictions_and_limits():
+    assert "not an after-image" in ramp_contradiction("persistence",
+                                                      {"fraction": -0.01, "tau_s": 5.0})
+    assert ramp_contradiction("persistence", {"fraction": 0.01, "tau_s": 5.0}) is None
+    assert ramp_contradiction("correlated_read_noise",
+                              {"row_variance_e2": -3.0, "column_variance_e2": -1.0})
+    assert "decay time" in ramp_implausible("persistence", {"fraction": 0.01, "tau_s": 1e4},
+                                            10.0, 16.0)
+    assert "READNOIS" in ramp_implausible("correlated_read_noise",
+                                          {"row_variance_e2": 1e4, "column_variance_e2": 0.0},
+                                          10.0, 16.0)
+    assert ramp_implausible("random_telegraph_noise", {"fraction": 0.2, "jump_e": 50.0},
+                            10.0, 16.0)

@@ -46,7 +46,7 @@ words where the time structure departs from the model.
 
 import math
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -55,10 +55,11 @@ from ..errors import IPCInputError
 from ..fitsio import atomic_output
 from .labdata import read_header
 from .model import DetectorModel
+from .ramp_effects import released
 from .sampling import block_sum
 
-__all__ = ["RampPair", "RampData", "read_ramps", "write_ramps", "read_times",
-           "expected_reads", "simulate_ramp", "ramp_gap", "describe_ramp_misfit",
+__all__ = ["RampPair", "RampData", "RampModel", "whitened", "read_ramps", "write_ramps",
+           "read_times", "expected_reads", "simulate_ramp", "ramp_gap", "describe_ramp_misfit",
            "RAMP_UNEXPLAINED_Z"]
 
 RAMP_UNEXPLAINED_Z = 5.0  # a pattern is described when it stands out at this many sigma
@@ -183,24 +184,83 @@ def _charge_scene(ramp):
     return ramp.rate[None] * ramp.times[:, None, None]
 
 
-def expected_reads(model, ramp):
+@dataclass(frozen=True)
+class RampModel:
+    """The frame model read by read (``frame``, a
+    :class:`~.model.DetectorModel`) and the effects only ramps show
+    (``effects``, ``{name: params}`` of :data:`~.ramp_effects.RAMP_EFFECTS`);
+    ``odd`` the pixels a ``random_telegraph_noise`` step gave their own
+    levels (``(ny, nx)`` bool, or ``None``)."""
+
+    frame: object
+    effects: dict = field(default_factory=dict)
+    odd: object = None
+
+    @property
+    def shot_noise(self):
+        return self.frame.shot_noise
+
+    def read_variance(self):
+        """Each read's noise variance per pixel: the frame's plus what rows and
+        columns share (``correlated_read_noise``)."""
+        c = self.effects.get("correlated_read_noise", {})
+        return (self.frame.read_variance() + max(c.get("row_variance_e2", 0.0), 0.0)
+                + max(c.get("column_variance_e2", 0.0), 0.0))
+
+    def afterglow(self, ramps, k):
+        """The persistence charge collected by each read of ramp ``k`` (before
+        readout), ``(NREADS, ny, nx)``, or ``None`` (:func:`~.ramp_effects.released`)."""
+        p = self.effects.get("persistence")
+        if p is None:
+            return None
+        return released(p, ramps, k)
+
+    def valid(self, ramp):
+        return ramp.valid if self.odd is None else ramp.valid & ~self.odd
+
+
+def _as_ramp_model(model):
+    return model if isinstance(model, RampModel) else RampModel(model)
+
+
+def expected_reads(model, ramp, extra=None):
     """``(mean, shot variance, read variance)`` of every read (the first two
     ``(NREADS, ny, nx)``): the frame model's prediction of ``SCENE t_i``
-    (:meth:`~.model.DetectorModel.predict_parts`) at each read."""
-    mean, var, _ = model.predict_parts(_charge_scene(ramp), ramp.oversample)
-    r = model.read_variance()
-    return mean, np.clip(var - r, 0.0, None), r
+    (:meth:`~.model.DetectorModel.predict_parts`) at each read, with
+    ``extra`` collected charge per read (an after-image) added before the
+    read-out to first order: its coupled value to the mean, itself to the
+    shot variance."""
+    model = _as_ramp_model(model)
+    frame = model.frame
+    mean, var, _ = frame.predict_parts(_charge_scene(ramp), ramp.oversample)
+    shot = np.clip(var - frame.read_variance(), 0.0, None)
+    if extra is not None:
+        mean = mean + frame.readout(extra) - frame.readout(np.zeros_like(extra))
+        shot = shot + np.clip(extra, 0.0, None)
+    return mean, shot, model.read_variance()
 
 
-def simulate_ramp(model, ramp, rng):
+def simulate_ramp(model, ramp, rng, extra=None):
     """A noisy ramp of ``model`` (a seeded ``numpy.random.Generator``): the
-    expected collected charge per read, its increments drawn as independent
-    Poisson charges and summed, read out at each read, read noise per read."""
-    c = model.collected(_charge_scene(ramp), ramp.oversample)
+    expected collected charge per read (``extra`` added), its increments
+    drawn as independent Poisson charges and summed, read out at each read,
+    read noise per read, and the offsets rows and columns share at each read
+    (``correlated_read_noise``)."""
+    model = _as_ramp_model(model)
+    frame = model.frame
+    c = frame.collected(_charge_scene(ramp), ramp.oversample)
+    if extra is not None:
+        c = c + extra
     steps = np.diff(np.concatenate([np.zeros((1,) + c.shape[1:]), c]), axis=0)
-    charge = np.cumsum(collect(steps, rng if model.shot_noise else None), axis=0)
-    return model.readout(charge) + read_noise(charge.shape, math.sqrt(model.read_variance()),
-                                              rng)
+    charge = np.cumsum(collect(steps, rng if frame.shot_noise else None), axis=0)
+    out = frame.readout(charge) + read_noise(charge.shape, math.sqrt(frame.read_variance()), rng)
+    shared = model.effects.get("correlated_read_noise", {})
+    n, ny, nx = charge.shape
+    if shared.get("row_variance_e2", 0.0) > 0:
+        out += rng.normal(0.0, math.sqrt(shared["row_variance_e2"]), (n, ny, 1))
+    if shared.get("column_variance_e2", 0.0) > 0:
+        out += rng.normal(0.0, math.sqrt(shared["column_variance_e2"]), (n, 1, nx))
+    return out
 
 
 def _whitened(reads, mean, shot, r, valid):
@@ -245,16 +305,25 @@ def _jumps(w):
     return int(odd.sum()), JUMP_P * w.shape[1], int(both.sum())
 
 
+def whitened(model, ramps, k, reads=None):
+    """Whitened increments ``(NREADS, npix)`` of ramp ``k`` of ``ramps``
+    (``reads`` in place of its MEASURED) under ``model``, and its valid mask."""
+    model = _as_ramp_model(model)
+    ramp = ramps[k]
+    mean, shot, r = expected_reads(model, ramp, model.afterglow(ramps, k))
+    valid = model.valid(ramp)
+    return _whitened(ramp.reads if reads is None else reads, mean, shot, r, valid), valid
+
+
 def _statistics(model, ramps, reads_of):
-    """Gap, gap per read, neighbour products and :func:`_jumps` of
-    ``reads_of(ramp)`` under ``model``."""
+    """Gap, gap per read, neighbour products, :func:`_jumps` and the number of
+    whitened increments of ``reads_of(k)`` (ramp ``k``'s reads) under ``model``."""
     squares, per_read, products, jumps = [], [], [], np.zeros(3)
-    for ramp in ramps:
-        mean, shot, r = expected_reads(model, ramp)
-        w = _whitened(reads_of(ramp), mean, shot, r, ramp.valid)
+    for k in range(len(ramps)):
+        w, valid = whitened(model, ramps, k, reads_of(k))
         squares.append((w * w).ravel())
         per_read.append(np.mean(w * w, axis=1))
-        products.append(_neighbour_products(w, ramp.valid))
+        products.append(_neighbour_products(w, valid))
         jumps += _jumps(w)
     nb = {a: float(np.mean([p[a] for p in products])) for a in ("x", "y")}
     n = sum(s.size for s in squares)
@@ -274,11 +343,12 @@ def ramp_gap(data, model=None, n_sim=8, seed=0):
     :func:`describe_ramp_misfit` when it is not.
     """
     data = data if isinstance(data, RampData) else read_ramps(data)
-    model = model or data.model()
+    model = _as_ramp_model(model or data.model())
+    ramps = data.ramps
     rng = np.random.default_rng(seed)
-    gap_now, per_read, nb, jumps, n = _statistics(model, data.ramps, lambda ramp: ramp.reads)
-    sims = [_statistics(model, data.ramps, lambda ramp: simulate_ramp(model, ramp, rng))
-            for _ in range(int(n_sim))]
+    gap_now, per_read, nb, jumps, n = _statistics(model, ramps, lambda k: ramps[k].reads)
+    sims = [_statistics(model, ramps, lambda k: simulate_ramp(
+        model, ramps[k], rng, model.afterglow(ramps, k))) for _ in range(int(n_sim))]
     gaps = np.array([s[0] for s in sims])
     reads = np.array([s[1] for s in sims])
     out = {"gap": gap_now, "gap_per_read": per_read.tolist(), "neighbour_correlation": nb,

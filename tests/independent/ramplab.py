@@ -8,15 +8,15 @@ the physics, read by read:
   single hot pixels, e- per second (SCENE is this rate).
 - Collection: between reads each pixel gains a Poisson number of electrons
   of mean ``rate x TFRAME`` (read 0 at ``TFIRST = TFRAME``), summed.
-- Persistence (optional): an after-image of an earlier exposure where the
-  patches and hot pixels were, an extra rate ``A q exp(-t / tau)`` with ``q``
-  the earlier charge, collected like light.
+- Persistence (optional): an after-image of an earlier minute of the same
+  scene, an extra rate ``A q exp(-t / tau)`` with ``q`` the earlier charge
+  (linear in it), collected like light.
 - IPC: a constant 3x3 kernel (``alpha`` to each nearest neighbour, zero
   beyond the frame) on the charge present at each read.
 - Read noise: Gaussian per read and pixel; optionally a row offset per read
   shared by every pixel of a row (correlated read noise, the 1/f picture of a
-  readout channel), and telegraph pixels whose level jumps between two
-  values from read to read.
+  readout channel), telegraph pixels whose level jumps between two values
+  from read to read, and one-way steps at a random read (cosmic-ray hits).
 """
 
 import numpy as np
@@ -50,16 +50,17 @@ def _couple(q, alpha):
 
 
 def make_ramp(n, nreads, tframe, readnoise, rng, persistence=None, row_noise=0.0,
-              telegraph=None):
+              telegraph=None, steps_up=None):
     """``(rate, reads)`` of one ramp (module docstring). ``persistence`` is
     ``(A, tau)`` (per second, s), ``row_noise`` the row offsets' RMS (e-),
-    ``telegraph`` ``(fraction of pixels, jump in e-)``."""
+    ``telegraph`` ``(fraction of pixels, jump in e-)``, ``steps_up`` likewise
+    for one-way steps."""
     rate = scene_rate(n, rng)
     times = tframe * np.arange(1, nreads + 1)
     extra = np.zeros((nreads, n, n))
     if persistence is not None:
         amp, tau = persistence
-        earlier = np.where(rate > 100.0, rate * 60.0, 0.0)  # a minute's charge before
+        earlier = rate * 60.0  # the same scene for a minute before
         edges = np.concatenate([[0.0], times])
         decay = tau * (np.exp(-edges[:-1] / tau) - np.exp(-edges[1:] / tau))
         extra = amp * earlier[None] * decay[:, None, None]
@@ -73,6 +74,12 @@ def make_ramp(n, nreads, tframe, readnoise, rng, persistence=None, row_noise=0.0
         pixels = rng.random((n, n)) < fraction
         state = rng.random((nreads, n, n)) < 0.5
         reads += np.where(pixels[None] & state, jump, 0.0)
+    if steps_up is not None:  # one-way steps at a random read (cosmic-ray hits)
+        fraction, size = steps_up
+        pixels = rng.random((n, n)) < fraction
+        when = rng.integers(1, nreads, (n, n))
+        reads += np.where(pixels[None] & (np.arange(nreads)[:, None, None] >= when[None]),
+                          size, 0.0)
     return rate, reads
 
 
