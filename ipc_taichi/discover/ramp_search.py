@@ -21,8 +21,9 @@ Procedure (:func:`discover_ramps`)
      variance.
    - ``random_telegraph_noise``: the pixels whose whitened increments lie
      in the ``1e-4`` chi-square tail, when chance (Poisson) gives as many
-     with a probability under that of 5 sigma; each is given its own levels (one parameter per pixel),
-     evidence its chi-square excess over its degrees of freedom less
+     with a probability under that of 5 sigma; each is given its own
+     levels (one parameter per pixel), evidence its chi-square excess over
+     its degrees of freedom less
      ``ln n`` per pixel; ``jump_e`` the median of their largest departures.
 
 3. A candidate is named when its evidence passes the threshold (25), its fit
