@@ -7,6 +7,8 @@ leaves the verdict incomplete with the words that point at it; the search
 (``ramp_search``) names persistence, correlated read noise and telegraph
 pixels, each at its truth, and refuses what contradicts them."""
 
+import json
+
 import numpy as np
 import pytest
 
@@ -182,3 +184,13 @@ def test_ramp_effect_contradictions_and_limits():
                                           10.0, 16.0)
     assert ramp_implausible("random_telegraph_noise", {"fraction": 0.2, "jump_e": 50.0},
                             10.0, 16.0)
+
+
+def test_cli_discover_reads_a_ramp_file(tmp_path, cli):
+    path = _ramp_file(tmp_path, 316, row_noise=6.0)
+    report = tmp_path / "report.json"
+    result = cli("discover", path, "--report", str(report), "--quiet")
+    assert result.returncode == 0, result.stderr
+    data = json.loads(report.read_text())
+    assert data["missing_effects"] == ["correlated_read_noise"] and data["complete"] is True
+    assert result.stdout.startswith("complete: missing effects correlated_read_noise")

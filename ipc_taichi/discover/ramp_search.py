@@ -45,6 +45,7 @@ import math
 import numpy as np
 from scipy.optimize import minimize_scalar
 
+from .model import DetectorModel
 from .ramp_effects import (
     RAMP_EFFECTS,
     earlier_charge,
@@ -197,16 +198,31 @@ def _verdict(stats):
     return {key: stats[key] for key in ("gap", "gap_floor", "gap_floor_sigma", "complete")}
 
 
+def _starting_model(data, start):
+    """The frame model read by read: the header's, a
+    :class:`~.model.DetectorModel`, or a coupling-model file's
+    (:meth:`~.model.DetectorModel.from_coupling`, its measured sections included)."""
+    if start is None:
+        return data.model()
+    if isinstance(start, DetectorModel):
+        return start
+    from ..model import CouplingModel
+
+    coupling, document = CouplingModel.load(start, with_document=True)
+    return DetectorModel.from_coupling(coupling, data.readnoise, data.shot_noise, document)
+
+
 def discover_ramps(data, seed=0, n_sim=8, threshold=THRESHOLD, max_steps=3, start=None,
                    log=None):
     """Find the ramp effects missing from the starting model of a ramp file
-    (module docstring). Returns the report (``docs/discovery_format.md``):
+    (module docstring); ``start`` replaces the header's model
+    (:func:`_starting_model`). Returns the report (``docs/discovery_format.md``):
     ``baseline_gap``, ``gap_floor``, ``gap_floor_sigma``, ``steps``,
     ``missing_effects``, ``final_gap``, ``complete``, ``unexplained``, and
     ``not_named`` (the fitted candidates refused, with why)."""
     data = data if isinstance(data, RampData) else read_ramps(data)
     say = log or (lambda line: None)
-    model = RampModel(start or data.model())
+    model = RampModel(_starting_model(data, start))
     ramps = data.ramps
     stats = ramp_gap(data, model, n_sim, seed)
     baseline, steps, refused = stats["gap"], [], {}

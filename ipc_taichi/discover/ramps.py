@@ -59,6 +59,7 @@ from .ramp_effects import released
 from .sampling import block_sum
 
 __all__ = ["RampPair", "RampData", "RampModel", "whitened", "read_ramps", "write_ramps",
+           "is_ramp_file",
            "read_times", "expected_reads", "simulate_ramp", "ramp_gap", "describe_ramp_misfit",
            "RAMP_UNEXPLAINED_Z"]
 
@@ -156,6 +157,19 @@ def read_ramps(path):
     if not ramps:
         raise IPCInputError(f"{path}: no 3-D MEASURED (ramp) HDU")
     return RampData(path, readnoise, shot_noise, law, ramps)
+
+
+def is_ramp_file(path):
+    """Whether a lab file holds a ramp pair (a 3-D MEASURED HDU); ``False``
+    for anything unreadable (the frame reader then says why)."""
+    from astropy.io import fits
+
+    try:
+        with fits.open(path, memmap=False) as hdul:
+            return any(str(h.header.get("EXTNAME", "")).strip().upper() == "MEASURED"
+                       and h.header.get("NAXIS", 0) == 3 for h in hdul[1:])
+    except (OSError, ValueError):
+        return False
 
 
 def write_ramps(path, ramps, readnoise, law="donlon2018", shot_noise=True, overwrite=False):
