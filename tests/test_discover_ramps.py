@@ -194,3 +194,12 @@ def test_cli_discover_reads_a_ramp_file(tmp_path, cli):
     data = json.loads(report.read_text())
     assert data["missing_effects"] == ["correlated_read_noise"] and data["complete"] is True
     assert result.stdout.startswith("complete: missing effects correlated_read_noise")
+
+
+def test_benchmark_ramps_tiny_run():
+    # the bench row's code on a tiny ramp (the 256x256 x 10-read row: docs)
+    from ipc_taichi.discover.benchmark import benchmark_ramps
+
+    out = benchmark_ramps(n=24, nreads=4)
+    assert out["named"] == ["persistence"] and out["complete"] is True
+    assert out["persistence"]["fraction"] == pytest.approx(0.03, rel=0.2)
