@@ -12,7 +12,12 @@ import resource
 import tempfile
 import time
 
+import numpy as np
+
 from .labdata import simulate_lab
+from .model import DetectorModel
+from .ramp_search import discover_ramps
+from .ramps import RampModel, RampPair, simulate_ramp, write_ramps
 from .search import discover
 
 __all__ = ["benchmark_oversampled", "benchmark_ramps"]
@@ -52,12 +57,6 @@ def benchmark_ramps(n=256, nreads=10, tframe=2.0, fraction=0.03, tau_s=5.0, seed
     Returns ``wall_s``, ``cpu_s``, ``peak_rss_mb``, ``named``, ``complete`` and
     the fitted ``persistence`` parameters.
     """
-    import numpy as np
-
-    from .model import DetectorModel
-    from .ramp_search import discover_ramps
-    from .ramps import RampModel, RampPair, simulate_ramp, write_ramps
-
     rng = np.random.default_rng(seed)
     rate = np.full((n, n), 20.0)
     rate[rng.random((n, n)) < 0.3] = 400.0

@@ -45,6 +45,7 @@ import math
 import numpy as np
 from scipy.optimize import minimize_scalar
 
+from ..model import CouplingModel
 from .model import DetectorModel
 from .ramp_effects import (
     RAMP_EFFECTS,
@@ -206,8 +207,6 @@ def _starting_model(data, start):
         return data.model()
     if isinstance(start, DetectorModel):
         return start
-    from ..model import CouplingModel
-
     coupling, document = CouplingModel.load(start, with_document=True)
     return DetectorModel.from_coupling(coupling, data.readnoise, data.shot_noise, document)
 
