@@ -14,5 +14,6 @@ from .ramp_search import discover_ramps
 from .ramps import read_ramps
 from .search import Discovery, discover
 
-__all__ = ["discover", "discover_ramps", "read_ramps", "Discovery", "DetectorModel", "CHAIN_ORDER", "EFFECTS", "EFFECT_NAMES",
-           "LabData", "LabPair", "read_lab", "write_lab", "make_scene", "simulate_lab"]
+__all__ = ["discover", "discover_ramps", "read_ramps", "Discovery", "DetectorModel",
+           "CHAIN_ORDER", "EFFECTS", "EFFECT_NAMES", "LabData", "LabPair", "read_lab",
+           "write_lab", "make_scene", "simulate_lab"]
