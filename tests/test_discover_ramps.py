@@ -203,3 +203,29 @@ def test_benchmark_ramps_tiny_run():
     out = benchmark_ramps(n=24, nreads=4)
     assert out["named"] == ["persistence"] and out["complete"] is True
     assert out["persistence"]["fraction"] == pytest.approx(0.03, rel=0.2)
+
+
+def test_brighter_fatter_ramp_is_not_named_a_ramp_effect(tmp_path):
+    # brighter-fatter (a frame effect the ramp search does not fit yet), made
+    # by the ramp model itself: the lines through the patches share a misfit,
+    # the lines with no light on or next to them do not, so it is not read
+    # noise; nothing is named and the verdict says the misfit grows with time
+    from ipc_taichi.discover.model import DetectorModel
+    from ipc_taichi.discover.ramps import RampModel, RampPair
+
+    rate = np.full((48, 48), 20.0)
+    for y in range(3, 42, 8):
+        for x in range(3, 42, 8):
+            rate[y:y + 3, x:x + 3] = 2500.0
+    times = 2.0 * np.arange(1, 11)
+    bf = {"deflection_x_at_50ke": 0.04, "deflection_y_at_50ke": 0.05, "upwind": 1.0,
+          "reach": 0.0}
+    model = RampModel(DetectorModel("constant:0.0125", 10.0, effects={"brighter_fatter": bf}))
+    reads = simulate_ramp(model, RampPair(1, rate, np.zeros((10, 48, 48)), times),
+                          np.random.default_rng(317))
+    path = write_ramps(str(tmp_path / "bf.fits"), [(rate, reads, 2.0)], 10.0,
+                       law="constant:0.0125")
+    report = discover_ramps(path)
+    assert report["missing_effects"] == [] and report["complete"] is False
+    assert "light falls" in report["not_named"]["correlated_read_noise"]
+    assert "rising with time" in report["unexplained"][0]

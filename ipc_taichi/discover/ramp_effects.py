@@ -20,9 +20,12 @@ is :mod:`.effects`).
     ``row_variance_e2``, ``column_variance_e2``: at each read an offset
     shared by every pixel of a row (a column), Gaussian of this variance
     (e-^2): the 1/f noise of a readout channel. Contradicted when neither is
-    positive; outside the physical range when the shared RMS exceeds 3 times
-    ``READNOIS`` (a read noise is not several times what the detector's own
-    characterisation says, as for ``excess_read_noise``).
+    positive, or when the lines with no light on or next to them (by SCENE)
+    show under half of it (a misfit of the signal at the sources, e.g. brighter-fatter,
+    raises the lines through them only); outside the physical range when the
+    shared RMS exceeds 3 times ``READNOIS`` (a read noise is not several
+    times what the detector's own characterisation says, as for
+    ``excess_read_noise``).
 ``random_telegraph_noise``
     ``fraction``, ``jump_e``: that share of the pixels switches between two
     levels ``jump_e`` apart from read to read; such pixels are given their own
@@ -57,6 +60,7 @@ RAMP_EFFECTS = {e.name: e for e in (
 # persistence: at most this fraction of the earlier charge, a decay at most this
 # many integrations long; shared read noise at most this many READNOIS; telegraph
 # pixels at most this share of the pixels
+DARK_SHARE = 0.5  # shared read noise: the dark lines must show this share of it
 RAMP_LIMITS = {"persistence": 0.05, "persistence_tau": 20.0, "correlated_read_noise": 3.0,
                "random_telegraph_noise": 0.05}
 
@@ -79,18 +83,23 @@ def released(params, ramps, k):
     return float(params["fraction"]) * earlier_charge(ramps, k)[None] * growth[:, None, None]
 
 
-def ramp_contradiction(name, params, up_and_down=None):
-    """Why ``params`` contradict ramp effect ``name``, or ``None``
-    (``up_and_down``: for telegraph noise, the share of its pixels whose
-    increments go both ways)."""
+def ramp_contradiction(name, params, extra=None):
+    """Why ``params`` contradict ramp effect ``name``, or ``None``. ``extra``:
+    for telegraph noise the share of its pixels whose increments go both
+    ways, for shared read noise the share of it the dark lines show (a read
+    noise is the same where no light falls)."""
     if name == "persistence" and params["fraction"] <= 0:
         return (f"a deficit where earlier light was (fraction {params['fraction']:.4g} <= 0) "
                 "is not an after-image")
     if name == "correlated_read_noise" and max(params["row_variance_e2"],
                                                params["column_variance_e2"]) <= 0:
         return "rows and columns share less noise than independent pixels would"
-    if name == "random_telegraph_noise" and up_and_down is not None and up_and_down <= 0.5:
-        return (f"only {100 * up_and_down:.0f} % of the pixels off the model jump both ways: "
+    if name == "correlated_read_noise" and extra is not None and extra < DARK_SHARE:
+        return (f"the lines share it where light falls, not where none does (the lines with "
+                f"no light on or next to them show {100 * extra:.0f} % of it): a misfit of the "
+                "signal, not read noise")
+    if name == "random_telegraph_noise" and extra is not None and extra <= 0.5:
+        return (f"only {100 * extra:.0f} % of the pixels off the model jump both ways: "
                 "steps that do not return (a cosmic ray, or a signal the model lacks)")
     return None
 

@@ -122,10 +122,14 @@ def _fit_persistence(model, ramps):
 
 
 def _fit_shared_noise(model, ramps):
-    """``(params, delta deviance)`` of noise shared by rows and by columns."""
-    params, gain = {}, 0.0
+    """``(params, delta deviance, dark share)`` of noise shared by rows and by
+    columns; the dark share is, for the direction with the larger variance,
+    its estimate from the dark lines (a line and its two neighbours at or
+    under the median of the lines' SCENE) over the estimate from all, ``None``
+    with under 8 of them: a read noise is the same where no light falls."""
+    params, gain, dark = {}, 0.0, {}
     for key, axis in (("row_variance_e2", 2), ("column_variance_e2", 1)):
-        means, variances = [], []
+        means, variances, light = [], [], []
         for k in range(len(ramps)):
             _, d, valid, var = _cholesky(model, ramps, k)
             full = np.zeros((d.shape[0],) + valid.shape)
@@ -137,12 +141,20 @@ def _fit_shared_noise(model, ramps):
             v = vfull.sum(axis=axis)[:, ok] / count[ok] ** 2
             means.append(m[1:].ravel())  # read 0 holds one offset, the others two
             variances.append(v[1:].ravel())
-        m, v = np.concatenate(means), np.concatenate(variances)
+            lit = np.nan_to_num(earlier_charge([ramps[k]], 0)).sum(axis=axis - 1)
+            # a line and its two neighbours: a misfit at a source reaches the next line
+            near = np.maximum(lit, np.maximum(np.roll(lit, 1), np.roll(lit, -1)))
+            light.append(np.broadcast_to(near <= np.median(lit), (len(m),) + lit.shape)
+                         [1:][:, ok].ravel())
+        m, v, low = np.concatenate(means), np.concatenate(variances), np.concatenate(light)
         q = float(np.mean(m * m - v) / 2.0)
         params[key] = q
+        dark[key] = (float(np.mean(m[low] ** 2 - v[low]) / 2.0) / q
+                     if q > 0 and low.sum() >= 8 else None)
         if q > 0:
             gain += float(np.sum(m * m / v - m * m / (v + 2 * q) - np.log((v + 2 * q) / v)))
-    return params, gain
+    main = max(params, key=params.get)
+    return params, gain, dark[main]
 
 
 def _fit_telegraph(model, ramps):
@@ -179,7 +191,7 @@ def fit_ramp_effect(name, model, ramps, ln_n):
         params, gain = _fit_persistence(model, ramps)
         k = 2
     elif name == "correlated_read_noise":
-        params, gain = _fit_shared_noise(model, ramps)
+        params, gain, dark = _fit_shared_noise(model, ramps)
         k = 2
     else:
         found = _fit_telegraph(model, ramps)
@@ -192,7 +204,7 @@ def fit_ramp_effect(name, model, ramps, ln_n):
     kept = {key: max(v, 0.0) for key, v in params.items()} if name == "correlated_read_noise" \
         else params
     newer = RampModel(model.frame, {**model.effects, name: kept}, model.odd)
-    return params, gain - k * ln_n, newer, None
+    return params, gain - k * ln_n, newer, dark if name == "correlated_read_noise" else None
 
 
 def _verdict(stats):
