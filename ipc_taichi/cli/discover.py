@@ -4,6 +4,7 @@
 
 import json
 import sys
+from types import SimpleNamespace
 
 from ..errors import IPCInputError
 from ..fitsio import check_output_path
@@ -101,7 +102,20 @@ def run_discover(args):
         from ..model import CouplingModel
 
         effects_from_document(CouplingModel.load(args.model, with_document=True)[1], args.model)
-    result = discover(args.data, seed=args.seed, threshold=threshold, log=say, start=args.model)
+    from ..discover.ramps import is_ramp_file
+
+    if is_ramp_file(args.data):  # 3-D MEASURED: the time structure (discover.ramp_search)
+        from ..discover.ramp_search import discover_ramps
+
+        result = SimpleNamespace(report=discover_ramps(args.data, seed=args.seed,
+                                                       threshold=threshold, log=say,
+                                                       start=args.model))
+        if args.figures:
+            print("discover: --figures is not written for ramp files yet", file=sys.stderr)
+            args.figures = None
+    else:
+        result = discover(args.data, seed=args.seed, threshold=threshold, log=say,
+                          start=args.model)
     if args.figures:
         write_figures(result, args.figures)
     if args.report:

@@ -8,7 +8,7 @@ pairs of a file written out exactly) and the noise floor (fresh simulations
 of the model against its own prediction).
 """
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -28,7 +28,7 @@ from .diagnostics import (
     valid_mask,
 )
 from .model import SUBPIXEL_EFFECTS
-from .sampling import block_sum
+from .sampling import block_sum, isolated_points
 
 __all__ = ["PairBlocks", "Block", "deviance"]
 
@@ -104,6 +104,30 @@ class PairBlocks:
             scenes, measured, valid, filled = (np.stack(a) for a in zip(*items))
             blocks.append(Block(scenes, measured, valid, scenes if n == 1 else filled, n))
         return cls(blocks, int(sum(b.valid.sum() for b in blocks)))
+
+    def without_single_pixel_sources(self):
+        """These blocks less the pixels where a pixel-total SCENE cannot say
+        where the light lies and an effect that moves charge by a fraction of
+        a pixel depends on it: each isolated single-pixel source (its 8
+        neighbours each under :data:`~.sampling.POINT_CONTRAST` of it, e.g.
+        a hot pixel, uniform across its pixel or at its centre alike) and its
+        8 neighbours. ``None`` when no pixel-total block holds such a source
+        (blocks with ``OVERSAMP`` say where their light is: kept whole)."""
+        from scipy.ndimage import binary_dilation
+
+        out, dropped = [], 0
+        for b in self.blocks:
+            if b.oversample > 1:
+                out.append(b)
+                continue
+            spots = isolated_points(b.scenes) > 0
+            near = binary_dilation(spots, structure=np.ones((1, 3, 3), dtype=bool))
+            keep = b.valid & ~near
+            dropped += int((b.valid & near).sum())
+            out.append(replace(b, valid=keep, measured=np.where(keep, b.measured, 0.0)))
+        if not dropped:
+            return None
+        return PairBlocks(out, int(sum(b.valid.sum() for b in out)))
 
     def probes(self):
         """Per frame (blocks in order) the probes of its SCENE

@@ -272,6 +272,7 @@ class Refusal:
 
     why: str
     reason: str
+    of_effect: bool = False  # refused for what its own fit says of it, not for the gap
 
 
 def scatters_below_floor(frames, model, parts, gap_now, seed, n_sim=8):
@@ -300,12 +301,13 @@ def refusal(frames, rnd, joined, names, readnoise, seed):
     best, fraction, refit = rnd.best, rnd.explained(joined.gap_after), joined.fit
     unphysical = refit_gate(refit, names, readnoise)
     if best in joined.gone:
-        return Refusal(FRAGILE, f"is {FRAGILE}")
+        return Refusal(FRAGILE, f"is {FRAGILE}", of_effect=True)
     if unphysical:
         name, why = unphysical
         whose = "its" if name == best else f"{name}'s"
         return Refusal(f"after the joint refit {whose} fit {why}",
-                       f"would leave {name} after the joint refit with a fit that {why}")
+                       f"would leave {name} after the joint refit with a fit that {why}",
+                       of_effect=True)
     if rnd.above_floor > 3.0 and (fraction is None or fraction < MIN_EXPLAINED_FRACTION):
         share = f"{100 * (fraction or 0.0):.1f} %"
         return Refusal(f"it would remove only {share} of the excess",

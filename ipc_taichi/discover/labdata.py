@@ -29,8 +29,8 @@ from ..laws import get_law
 from .effects import EFFECTS
 from .model import DetectorModel
 
-__all__ = ["LabData", "LabPair", "read_lab", "write_lab", "make_scene", "simulate_lab",
-           "effect_params", "ipclaw", "FLAT_LEVELS"]
+__all__ = ["LabData", "LabPair", "read_lab", "read_header", "write_lab", "make_scene",
+           "simulate_lab", "effect_params", "ipclaw", "FLAT_LEVELS"]
 
 FLAT_LEVELS = (3000.0, 10000.0, 20000.0, 35000.0, 50000.0)  # e-, one patch each per frame
 _CELL = 8  # px: scene elements sit one per cell, so they stay isolated
@@ -78,6 +78,28 @@ def _as_bool(value, label):
     raise IPCInputError(f"{label}: SHOTNOIS = {value!r} is not a boolean")
 
 
+def read_header(head, path):
+    """``(READNOIS, SHOTNOIS, IPCLAW)`` of a lab file's PRIMARY header
+    (``path`` names the file in the one-line errors)."""
+    where = f"{path}[PRIMARY]"
+    if "READNOIS" not in head:
+        raise IPCInputError(f"{where}: keyword READNOIS (read noise, e- RMS) is missing")
+    try:
+        readnoise = float(head["READNOIS"])
+    except (TypeError, ValueError):
+        raise IPCInputError(f"{where}: READNOIS = {head['READNOIS']!r} is not a "
+                            "number") from None
+    if not (math.isfinite(readnoise) and readnoise >= 0):
+        raise IPCInputError(f"{where}: READNOIS = {readnoise} must be finite and >= 0")
+    shot_noise = _as_bool(head.get("SHOTNOIS", True), where)
+    law = str(head.get("IPCLAW", "donlon2018")).strip()
+    try:
+        get_law(law)
+    except LawError as exc:
+        raise IPCInputError(f"{where}: IPCLAW {law!r}: {exc}") from None
+    return readnoise, shot_noise, law
+
+
 def read_lab(path):
     """Read and validate a lab file; return :class:`LabData`.
 
@@ -98,23 +120,7 @@ def read_lab(path):
     except Exception as exc:
         raise IPCInputError(f"{path}: not a readable FITS file ({type(exc).__name__})") from None
     with hdul:
-        head = hdul[0].header
-        where = f"{path}[PRIMARY]"
-        if "READNOIS" not in head:
-            raise IPCInputError(f"{where}: keyword READNOIS (read noise, e- RMS) is missing")
-        try:
-            readnoise = float(head["READNOIS"])
-        except (TypeError, ValueError):
-            raise IPCInputError(f"{where}: READNOIS = {head['READNOIS']!r} is not a "
-                                "number") from None
-        if not (math.isfinite(readnoise) and readnoise >= 0):
-            raise IPCInputError(f"{where}: READNOIS = {readnoise} must be finite and >= 0")
-        shot_noise = _as_bool(head.get("SHOTNOIS", True), where)
-        law = str(head.get("IPCLAW", "donlon2018")).strip()
-        try:
-            get_law(law)
-        except LawError as exc:
-            raise IPCInputError(f"{where}: IPCLAW {law!r}: {exc}") from None
+        readnoise, shot_noise, law = read_header(hdul[0].header, path)
         frames = {"SCENE": {}, "MEASURED": {}}
         for index, hdu in enumerate(hdul):
             name = str(hdu.header.get("EXTNAME", "")).strip().upper()
@@ -126,7 +132,9 @@ def read_lab(path):
                 raise IPCInputError(f"{label}: EXTVER {ver} appears twice (HDU {index})")
             if not hdu.is_image or hdu.data is None or hdu.data.ndim != 2:
                 shape = None if getattr(hdu, "data", None) is None else hdu.data.shape
-                raise IPCInputError(f"{label}: expected a 2-D image, got shape {shape}")
+                raise IPCInputError(f"{label}: expected a 2-D image, got shape {shape}"
+                                    + (" (a ramp: ipc_taichi.discover.ramps reads it)"
+                                       if shape is not None and len(shape) == 3 else ""))
             data = np.asarray(hdu.data, dtype=np.float64)  # native order, BSCALE applied
             if not np.isfinite(data).any():
                 raise IPCInputError(f"{label}: no finite pixel (all NaN)")

@@ -133,6 +133,7 @@ class Step:
     refitted_with: list
     pruned: tuple
     alternatives: list
+    picture: str = ""  # how the joint refit was made when not on every pixel
 
     @property
     def effect(self):
@@ -154,6 +155,7 @@ class Step:
                 "refitted_with": self.refitted_with, "pruned": list(self.pruned),
                 "floor_before": r.floor, "floor_sigma_before": r.floor_sigma,
                 "alternatives": self.alternatives,
+                **({"fitted": self.picture} if self.picture else {}),
                 "candidates": {n: round(c.evidence, 2) for n, c in r.trials.items()},
                 "contradicting": r.contradicting,
                 "without_signature": sorted(set(r.trials) - set(r.named)
