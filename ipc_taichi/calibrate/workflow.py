@@ -37,7 +37,7 @@ from ..errors import IPCInputError
 from ..fitsio import check_output_path
 from ..model import CouplingModel
 from . import flats as flatmod
-from . import hotpixels, lawfit, ramps, reffiles, report, transfer
+from . import hotpixels, lawfit, maps, ramps, reffiles, report, transfer
 from .inputs import DEFAULT_DQ_BITS, read_frames
 
 __all__ = ["calibrate"]
@@ -324,7 +324,7 @@ def _gain_used(files, gain):
 def calibrate(darks=(), flats=(), reference=None, output=None, *, report_path=None,
               figures=None, gain=None, bunit=None, hdu=None, read_noise=None,
               dq_bits=DEFAULT_DQ_BITS, refpix=None, threshold=30.0, folds=10,
-              collection_steps=None, overwrite=False):
+              collection_steps=None, overwrite=False, measure_map=True):
     """Measure a detector's coupling and write its model file.
 
     Parameters
@@ -366,6 +366,9 @@ def calibrate(darks=(), flats=(), reference=None, output=None, *, report_path=No
         continuous collection, which is the default): see
         :mod:`.ramps`.
     overwrite : bool
+    measure_map : bool
+        Measure the IPC map across the detector (:mod:`.maps`); it is written
+        only when held-out data prefer it to the uniform law.
 
     Returns
     -------
@@ -419,7 +422,11 @@ def calibrate(darks=(), flats=(), reference=None, output=None, *, report_path=No
     elif hot.integrations:
         transfer_check = transfer.held_out_residuals(hot.integrations, hot.events, hot.bins,
                                                      points_for(None)[1], fit["chosen"])
-    model = CouplingModel.resolve(law, geometry, "zero")
+    bond_map = None
+    if measure_map and (hot.events is not None or flat is not None):
+        bond_map = maps.measure_map(dark_frames, flat_frames, hot, law, geometry, rn)
+    model = CouplingModel.resolve(law, geometry, "zero",
+                                  bonds=bond_map["bonds"] if bond_map else None)
     nl_ipc = _nonlinear_ipc(fit, effects.pop("flat_ramp_nonlinear_ipc"))
     provenance = {"software": f"ipc_taichi {__version__}", "command": "calibrate",
                   "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
@@ -445,6 +452,8 @@ def calibrate(darks=(), flats=(), reference=None, output=None, *, report_path=No
                           if flat else [],
                           "growth_with_signal": flatmod.growth_with_signal(
                               flat.frame_rows) if flat else {}},
+                "bond_map": ({k: v for k, v in bond_map.items() if k != "bonds"}
+                             if bond_map else None),
                 "reference": ref, "not_measured": not_measured, "notes": notes}
     if output is not None:
         model.save(output, provenance=provenance, fit=report.json_ready(summary),
