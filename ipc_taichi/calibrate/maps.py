@@ -253,10 +253,11 @@ def _hot_grid(factors, keep, s, grid):
     return out
 
 
-def superpixel_map(s, shape, flat=None, flat_folds=(0, 1), read_cov=None, factors=None,
-                   hot_keep=None):
-    """The combined map on super-pixels of ``s``: ``{lag: (value, error)}``
-    (arrays ``(nj, ni)``; value 1 and error inf where nothing measured it)."""
+def _raw_map(s, shape, flat=None, flat_folds=(0, 1), read_cov=None, factors=None,
+             hot_keep=None):
+    """The flats' and hot pixels' values on super-pixels of ``s`` combined by
+    inverse variance: ``{lag: (value, error)}`` (value 1, error inf where
+    nothing measured it)."""
     grid = (-(-shape[0] // s), -(-shape[1] // s))
     parts = []
     if flat is not None:
@@ -274,41 +275,62 @@ def superpixel_map(s, shape, flat=None, flat_folds=(0, 1), read_cov=None, factor
             num += w * np.nan_to_num(v)
             den += w
         value = np.where(den > 0, num / np.maximum(den, 1e-300), 1.0)
-        error = np.where(den > 0, 1.0 / np.sqrt(np.maximum(den, 1e-300)), np.inf)
-        out[lag] = _shrunk(value, error)
+        out[lag] = (value, np.where(den > 0, 1.0 / np.sqrt(np.maximum(den, 1e-300)), np.inf))
     return out
 
 
-def _shrunk(value, error):
-    """Each super-pixel pulled towards 1 by its error: ``1 + (v - 1) t^2 / (t^2 +
-    e^2)``, ``t^2`` the map's own spread (the variance of ``v - 1`` beyond the
-    errors, solved for by weighted moments, at least :data:`MIN_SPREAD` ^ 2), so
-    a super-pixel measured by noise alone (a few flat pixels, no hot pixel) stays
-    near the law instead of taking its noise into the map."""
+def superpixel_map(s, shape, **sources):
+    """The map on super-pixels of ``s`` (``sources``: see :func:`_raw_map`):
+    ``{lag: (value, error)}``, each super-pixel shrunk (:func:`_shrunk`) towards
+    the map of super-pixels twice as large (recursively; the largest towards
+    1, the law), so a super-pixel that little measured follows its surroundings."""
+    raw = _raw_map(s, shape, **sources)
+    grid = raw[LAGS[0]][0].shape
+    coarser = 2 * s
+    if min(shape) // coarser >= MIN_GRID:
+        up = superpixel_map(coarser, shape, **sources)
+        prior = {lag: np.repeat(np.repeat(v, 2, 0), 2, 1)[:grid[0], :grid[1]]
+                 for lag, (v, _) in up.items()}
+    else:
+        prior = {lag: np.ones(grid) for lag in LAGS}
+    return {lag: _shrunk(*raw[lag], prior[lag]) for lag in LAGS}
+
+
+def _shrunk(value, error, prior):
+    """Each super-pixel pulled towards ``prior`` by its error: ``p + (v - p) t^2 /
+    (t^2 + e^2)``, ``t^2`` the spread of ``v - p`` beyond the errors (solved for
+    by weighted moments, at least :data:`MIN_SPREAD` ^ 2): a super-pixel measured
+    by noise alone (a few flat pixels, no hot pixel) keeps the prior instead of
+    taking its noise into the map."""
     ok = np.isfinite(error)
     if not ok.any():
-        return np.ones_like(value), error
-    v, e2 = value[ok] - 1.0, np.square(error[ok])
+        return prior.copy(), error
+    v, e2 = (value - prior)[ok], np.square(error[ok])
     t2 = MIN_SPREAD ** 2
     for _ in range(50):
         w = 1.0 / (e2 + t2) ** 2
         t2 = max(float(np.sum(w * (v * v - e2)) / np.sum(w)), MIN_SPREAD ** 2)
-    gain = np.where(ok, t2 / (t2 + np.square(np.where(ok, error, 0.0))), 0.0)
-    err = np.where(ok, np.sqrt(gain) * np.where(ok, error, 0.0), np.sqrt(t2))
-    return 1.0 + (value - 1.0) * gain, err
+    e = np.where(ok, error, 0.0)
+    gain = np.where(ok, t2 / (t2 + np.square(e)), 0.0)
+    return prior + (value - prior) * gain, np.where(ok, np.sqrt(gain) * e, np.sqrt(t2))
 
 
 def _choose_size(shape, **sources):
-    """The super-pixel size (:data:`SUPERPIXELS`) and why."""
+    """The super-pixel size (:data:`SUPERPIXELS`) and why: the smallest whose
+    median raw error reaches :data:`MAP_PRECISION`, then one size finer (its
+    super-pixels shrunk towards it), where the frame allows."""
     sizes = [s for s in SUPERPIXELS if min(shape) // s >= MIN_GRID]
     if not sizes:
         return None, f"the frame {shape[0]}x{shape[1]} is too small for {MIN_GRID} super-pixels"
-    for s in sizes:
-        m = superpixel_map(s, shape, **sources)
+    for k, s in enumerate(sizes):
+        m = _raw_map(s, shape, **sources)
         med = float(np.median(np.concatenate([m[lag][1].ravel() for lag in LAGS])))
         if med <= MAP_PRECISION:
-            return s, (f"the smallest super-pixel whose median error ({100 * med:.1f} %) "
-                       f"reaches {100 * MAP_PRECISION:.0f} %")
+            finer = sizes[k - 1] if k else s
+            return finer, (f"{s} px is the smallest super-pixel whose median error "
+                           f"({100 * med:.1f} %) reaches {100 * MAP_PRECISION:.0f} %; the map "
+                           f"is given at {finer} px, each super-pixel shrunk towards the "
+                           "coarser map by its own error")
     return sizes[-1], (f"no size reaches a median error of {100 * MAP_PRECISION:.0f} % "
                        f"({100 * med:.1f} % at {sizes[-1]} px): the largest is used")
 
