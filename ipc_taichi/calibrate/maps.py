@@ -497,8 +497,8 @@ def measure_map(dark_frames, flat_frames, hot, law, geometry, read_noise, shape=
     final = superpixel_map(s, shape, **sources)
     coarse = {lag: v for lag, (v, _) in final.items()}
     out.update(superpixel=[s, s], superpixel_reason=why, test=test,
-               x=coarse[(0, 1)], x_error=final[(0, 1)][1],
-               y=coarse[(1, 0)], y_error=final[(1, 0)][1])
+               x=coarse[(0, 1)].tolist(), x_error=final[(0, 1)][1].tolist(),
+               y=coarse[(1, 0)].tolist(), y_error=final[(1, 0)][1].tolist())
     if test["z"] is not None and test["z"] >= MAP_MARGIN:
         out.update(bonds=to_bonds(coarse, s, geometry, shape), written=True,
                    reason=f"held-out data prefer the map by {test['z']:.1f} standard errors "

@@ -18,7 +18,7 @@ import numpy as np
 from ..fitsio import write_json
 from .hotpixels import DIRECTIONS
 
-__all__ = ["write_report", "write_figures", "json_ready", "summary_lines"]
+__all__ = ["write_report", "write_figures", "json_ready", "summary_lines", "map_lines"]
 
 
 def json_ready(value):
@@ -94,6 +94,8 @@ def summary_lines(document, model):
             parts.append(f"{name} {_pm(r['residual'], r['error'], 100, '+.3f', ' %')}")
         lines.append(f"held-out hot pixels ({t['chosen']['n_pixels']}), neighbour residual: "
                      + "; ".join(parts))
+    lines += map_lines(document.get("bond_map"))
+    lines += [f"assumption tested: {a['note']}" for a in document.get("assumptions") or []]
     for line in document.get("not_measured", []):
         lines.append(f"not measured: {line}")
     for line in (document.get("fit") or {}).get("assumed") or []:
@@ -101,6 +103,29 @@ def summary_lines(document, model):
     for line in document.get("notes", []):
         lines.append(f"note: {line}")
     return lines
+
+
+def map_lines(section):
+    """The console's lines on the IPC map across the detector (:mod:`.maps`)."""
+    if not section:
+        return []
+    if section.get("x") is None:
+        return [f"IPC map: not measured: {section.get('reason')}"]
+    t = section.get("test") or {}
+
+    def z(part, what):
+        r = t.get(part)
+        return f"{what} {r['z']:+.1f} SE (n = {r['n']})" if r else f"{what}: not tested"
+
+    x = np.array(section["x"], float)
+    err = np.array(section["x_error"], float)
+    state = "WRITTEN" if section.get("written") else "not written (the model is uniform)"
+    flat = t.get("flat_superpixel")
+    return [f"IPC map: {state}: {section['reason']}",
+            f"IPC map: {section['superpixel'][0]} px super-pixels, x bonds {x.min():.3f}.."
+            f"{x.max():.3f} of the law (median error {np.nanmedian(err):.3f}); held-out: "
+            + z("hot", "hot pixels") + "; "
+            + z("flat", f"flats ({flat} px)" if flat else "flats")]
 
 
 def write_report(document, path, overwrite=False):
@@ -174,6 +199,28 @@ def _stamp_figure(fig, axes, transfer):
     fig.colorbar(im, ax=list(axes), label="fraction of the hot pixel's charge [%]")
 
 
+def _bond_map_figure(fig, axes, section):
+    """The map of the x and y bonds (relative to the law), their errors, and the
+    held-out test in the title."""
+    for row, name in enumerate(("x", "y")):
+        value = np.array(section[name], float)
+        error = np.array(section[f"{name}_error"], float)
+        for col, (data, label, cmap) in enumerate(((value, "map", "coolwarm"),
+                                                   (error, "error", "viridis"))):
+            ax = axes[row, col]
+            im = ax.imshow(data, origin="lower", cmap=cmap,
+                           **({"vmin": 2 - value.max(), "vmax": value.max()}
+                              if col == 0 else {}))
+            fig.colorbar(im, ax=ax, shrink=0.8)
+            ax.set_title(f"{name} bonds: {label} (super-pixels of "
+                         f"{section['superpixel'][0]} px)", fontsize=9)
+    t = section.get("test") or {}
+    parts = [f"{k} {t[k]['z']:+.1f} SE" for k in ("hot", "flat") if t.get(k)]
+    fig.suptitle(f"IPC map {'written' if section.get('written') else 'NOT written'}; "
+                 f"held-out preference for the map: {', '.join(parts) or 'not tested'}",
+                 fontsize=10)
+
+
 def _kernel_figure(fig, ax, bf):
     k = 1e7 * np.array(bf["kernel"], float)
     e = 1e7 * np.array(bf["kernel_error"], float) if bf.get("kernel_error") else None
@@ -220,8 +267,9 @@ def write_figures(folder, document, law, geometry):
 
     ``calibrate_law.png`` (the nearest-neighbour law with its band against
     the points at (S, 0) and (S, S)), ``calibrate_map.png`` (alpha(S, N)),
-    ``calibrate_stamp.png`` (the mean hot-pixel stamp before and after
-    decoupling with the held-out law), ``calibrate_bf_kernel.png`` (the
+    ``calibrate_bond_map.png`` (the IPC map across the detector, its error
+    and the held-out test), ``calibrate_stamp.png`` (the mean hot-pixel
+    stamp before and after decoupling with the held-out law), ``calibrate_bf_kernel.png`` (the
     brighter-fatter kernel), ``calibrate_covariance.png`` (flat-ramp
     covariances against signal with each model's prediction), and one
     ``calibrate_<direction>.png`` per direction (measured against ``w
@@ -259,6 +307,11 @@ def write_figures(folder, document, law, geometry):
         fig, axes = plt.subplots(1, 2, figsize=(9, 4), layout="constrained")
         _stamp_figure(fig, axes, transfer)
         save(fig, "calibrate_stamp.png")
+    section = document.get("bond_map") or {}
+    if section.get("x") is not None:
+        fig, axes = plt.subplots(2, 2, figsize=(9, 8), layout="constrained")
+        _bond_map_figure(fig, axes, section)
+        save(fig, "calibrate_bond_map.png")
     bf = document.get("brighter_fatter") or {}
     if bf.get("measured") and bf.get("kernel") is not None:
         fig, ax = plt.subplots(figsize=(5.5, 4.5))

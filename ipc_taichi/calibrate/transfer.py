@@ -78,7 +78,8 @@ def _residual(mosaics, model, min_signal):
             "stamp": stamp.tolist()}
 
 
-def held_out_residuals(integrations, events, bins, flat_rows, chosen, min_signal=1000.0):
+def held_out_residuals(integrations, events, bins, flat_rows, chosen, min_signal=1000.0,
+                       bin_floor=200.0):
     """Decouple each half of the hot pixels with laws fitted on the other half.
 
     Parameters
@@ -97,6 +98,8 @@ def held_out_residuals(integrations, events, bins, flat_rows, chosen, min_signal
         The law form chosen on all the data (:func:`.lawfit.choose_law`).
     min_signal : float
         Measurements below this charge [e-] are not scored.
+    bin_floor : float
+        The bins' floor [e-] (:func:`.hotpixels.floors`).
 
     Returns
     -------
@@ -110,7 +113,7 @@ def held_out_residuals(integrations, events, bins, flat_rows, chosen, min_signal
     scored = {"chosen": [], "constant": [], "uncorrected": []}
     for half in (0, 1):
         train = hotpixels.summarise_events(hotpixels.select_events(events, half_of != half),
-                                           bins=bins, min_count=3)
+                                           bins=bins, min_count=3, min_signal=bin_floor)
         fitted = lawfit.fit_forms(train, flat_rows)
         if fitted is None or chosen not in fitted["forms"]:
             return None

@@ -59,9 +59,10 @@ class _HotPixels:
     from (for the transfer check), the signal bins of the full data."""
 
     def __init__(self, darks, threshold, not_measured):
-        events, self.integrations, read_noise, self.found = [], [], [], 0
+        events, self.integrations, read_noise, self.found, noise = [], [], [], 0, []
         for f in darks:
             for i, integ in enumerate(f.data):
+                noise.append(hotpixels.frame_noise(integ[-1], f.mask[i, -1]))
                 positions = hotpixels.find_hot_pixels(integ[-1], f.mask[i, -1],
                                                       threshold=threshold)
                 self.found += len(positions)
@@ -72,9 +73,12 @@ class _HotPixels:
                 if rn is not None:
                     read_noise.append(rn)
         self.read_noise = float(np.median(read_noise)) if read_noise else None
+        noise = [n for n in noise if n is not None]
+        self.floors = hotpixels.floors(float(np.median(noise)) if noise else None)
         self.events = ({k: np.concatenate([e[k] for e in events]) for k in events[0]}
                        if events else None)
-        self.rows = hotpixels.summarise_events(self.events) if self.events else []
+        self.rows = (hotpixels.summarise_events(self.events, min_signal=self.floors["bins"])
+                     if self.events else [])
         self.bins = (np.array([r["signal_range"][0] for r in self.rows]
                               + [self.rows[-1]["signal_range"][1]]) if self.rows else None)
         if darks and not self.rows:
@@ -97,7 +101,8 @@ class _HotPixels:
             return self.rows
         keep = np.isin(hotpixels.fold_of(self.events["pixel"], k), list(folds))
         rows = hotpixels.summarise_events(hotpixels.select_events(self.events, keep),
-                                          bins=self.bins, min_count=3)
+                                          bins=self.bins, min_count=3,
+                                          min_signal=self.floors["bins"])
         full = {r["signal_range"][0]: r for r in self.rows}
         out = []
         for r in rows:
@@ -420,8 +425,11 @@ def calibrate(darks=(), flats=(), reference=None, output=None, *, report_path=No
         fit = {"chosen": "reference file", "law": law.describe(), "assumed": [
             "the reference file's constant kernel (no signal dependence)"]}
     elif hot.integrations:
-        transfer_check = transfer.held_out_residuals(hot.integrations, hot.events, hot.bins,
-                                                     points_for(None)[1], fit["chosen"])
+        transfer_check = transfer.held_out_residuals(
+            hot.integrations, hot.events, hot.bins, points_for(None)[1], fit["chosen"],
+            min_signal=hot.floors["score"], bin_floor=hot.floors["bins"])
+        law, geometry = _constant_unless_better(fit, transfer_check, points_for, law, geometry)
+    _say_why_empty(transfer_check, hot, darks, not_measured)
     bond_map = None
     if measure_map and (hot.events is not None or flat is not None):
         bond_map = maps.measure_map(dark_frames, flat_frames, hot, law, geometry, rn)
@@ -446,7 +454,7 @@ def calibrate(darks=(), flats=(), reference=None, output=None, *, report_path=No
                            (("dark", dark_frames), ("flat", flat_frames)) for f in files],
                 **effects, "nonlinear_ipc": nl_ipc, "law_choice": fit.get("law_choice"),
                 "transfer": transfer_check, "fit": fit,
-                "hot_pixels": {"found": hot.found, "bins": hot.rows},
+                "hot_pixels": {"found": hot.found, "bins": hot.rows, "floors_e": hot.floors},
                 "flats": {"levels": flat.rows if flat else [],
                           "ramps": [{"files": label, **m} for label, m in flat.measured]
                           if flat else [],
@@ -463,6 +471,43 @@ def calibrate(darks=(), flats=(), reference=None, output=None, *, report_path=No
     if figures is not None:
         document["figures"] = report.write_figures(figures, document, law, geometry)
     return {"model": model, "report": document, "output": output}
+
+
+def _constant_unless_better(fit, check, points_for, law, geometry):
+    """A law richer than a constant is kept only when its held-out hot-pixel
+    residual beats the constant's (smaller in size); otherwise the constant
+    fitted on every point is written and the fit says why."""
+    if fit["chosen"] == "constant" or not check:
+        return law, geometry
+    rc, rk = check["chosen"]["residual"], check["constant"]["residual"]
+    if rc is None or rk is None or abs(rc) < abs(rk):
+        return law, geometry
+    full = lawfit.fit_forms(*points_for(None))
+    geometry, law = lawfit.model_of(full, "constant")
+    note = (f"the held-out folds chose {fit['chosen']}, but on held-out hot pixels its "
+            f"residual ({100 * rc:+.4f} %) does not beat the constant's ({100 * rk:+.4f} %): "
+            "the constant is written")
+    fit["notes"] = list(fit.get("notes") or []) + [note]
+    fit["law_choice"] = {**(fit.get("law_choice") or {}), "demoted": fit["chosen"],
+                         "demoted_note": note}
+    fit["chosen"], fit["law"] = "constant", law.describe()
+    return law, geometry
+
+
+def _say_why_empty(check, hot, darks, not_measured):
+    """The held-out check is never silently empty: why, and what would make it possible."""
+    if not darks or (check and check["chosen"]["n_pixels"] > 0):
+        return
+    floor = hot.floors["score"]
+    above = 0
+    if hot.events is not None:
+        ids = np.unique(hot.events["pixel"][hot.events["signal"] >= floor])
+        above = ids.size
+    not_measured.append(
+        f"held-out check: empty ({hot.found} hot-pixel candidates, {above} reach the floor of "
+        f"{floor:.4g} e- = {hot.floors['source']}; each half needs hot pixels in every "
+        "signal bin to fit the law): darks with more or brighter hot pixels (longer "
+        "integrations) would make it possible")
 
 
 def _nonlinear_ipc(fit, ramp_evidence):
