@@ -137,7 +137,7 @@ def _differences(f):
     ints = np.repeat(np.arange(diff.shape[0]), diff.shape[1])
     diff = np.where(bad, np.nan, diff).reshape((-1,) + d.shape[-2:])
     n = np.sum(np.isfinite(diff), axis=0)
-    mean = np.nanmean(np.where(n > 1, 1.0, np.nan) * diff, axis=0) if diff.shape[0] > 1 else 0
+    mean = np.where(n > 1, np.nansum(diff, axis=0) / np.maximum(n, 1), np.nan)
     scale = np.sqrt(n / np.maximum(n - 1.0, 1.0))
     return (diff - mean) * scale, ints
 
