@@ -475,7 +475,7 @@ def measure_map(dark_frames, flat_frames, hot, law, geometry, read_noise, shape=
     same = all(f.shape2d == shape for f in dark_frames)
     if hot.events is not None and same:
         factors = hot_pixel_factors(hot.events, nx, law, geometry, read_noise)
-    out = {"bonds": None, "written": False, "shape": list(shape),
+    out = {"bonds": None, "written": False, "shape": list(shape), "read_cov": read_cov,
            "read_noise_correlation": (None if read_cov is None else
                                       {f"{dy},{dx}": c for (dy, dx), c
                                        in read_cov["correlation"].items()}),

@@ -36,8 +36,8 @@ from .. import __version__
 from ..errors import IPCInputError
 from ..fitsio import check_output_path
 from ..model import CouplingModel
+from . import assumptions, hotpixels, lawfit, maps, ramps, reffiles, report, transfer
 from . import flats as flatmod
-from . import hotpixels, lawfit, maps, ramps, reffiles, report, transfer
 from .inputs import DEFAULT_DQ_BITS, read_frames
 
 __all__ = ["calibrate"]
@@ -435,6 +435,11 @@ def calibrate(darks=(), flats=(), reference=None, output=None, *, report_path=No
         bond_map = maps.measure_map(dark_frames, flat_frames, hot, law, geometry, rn)
     model = CouplingModel.resolve(law, geometry, "zero",
                                   bonds=bond_map["bonds"] if bond_map else None)
+    levels = [r["level"] for r in flat.rows if r.get("terms")] if flat else []
+    tested = [assumptions.read_noise_correlation(
+                  bond_map.pop("read_cov", None) if bond_map else None, levels,
+                  float(law.alpha(1e4, 1e4))),
+              assumptions.hot_pixel_brighter_fatter(hot.slope(), effects["brighter_fatter"])]
     nl_ipc = _nonlinear_ipc(fit, effects.pop("flat_ramp_nonlinear_ipc"))
     provenance = {"software": f"ipc_taichi {__version__}", "command": "calibrate",
                   "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
@@ -461,7 +466,7 @@ def calibrate(darks=(), flats=(), reference=None, output=None, *, report_path=No
                           "growth_with_signal": flatmod.growth_with_signal(
                               flat.frame_rows) if flat else {}},
                 "bond_map": ({k: v for k, v in bond_map.items() if k != "bonds"}
-                             if bond_map else None),
+                             if bond_map else None), "assumptions": tested,
                 "reference": ref, "not_measured": not_measured, "notes": notes}
     if output is not None:
         model.save(output, provenance=provenance, fit=report.json_ready(summary),
