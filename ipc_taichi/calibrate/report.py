@@ -202,6 +202,8 @@ def _stamp_figure(fig, axes, transfer):
 def _bond_map_figure(fig, axes, section):
     """The map of the x and y bonds (relative to the law), their errors, and the
     held-out test in the title."""
+    lim = max(float(np.nanmax(np.abs(np.array(section[n], float) - 1))) for n in ("x", "y"))
+    lim = max(lim, 0.01)
     for row, name in enumerate(("x", "y")):
         value = np.array(section[name], float)
         error = np.array(section[f"{name}_error"], float)
@@ -209,8 +211,7 @@ def _bond_map_figure(fig, axes, section):
                                                    (error, "error", "viridis"))):
             ax = axes[row, col]
             im = ax.imshow(data, origin="lower", cmap=cmap,
-                           **({"vmin": 2 - value.max(), "vmax": value.max()}
-                              if col == 0 else {}))
+                           **({"vmin": 1 - lim, "vmax": 1 + lim} if col == 0 else {}))
             fig.colorbar(im, ax=ax, shrink=0.8)
             ax.set_title(f"{name} bonds: {label} (super-pixels of "
                          f"{section['superpixel'][0]} px)", fontsize=9)
