@@ -64,3 +64,24 @@ def test_real_nirspec_dark_is_the_same_at_three_gains():
         seen.append((t["chosen"]["n_pixels"], result["report"]["fit"]["chosen"],
                      round(floors["score"] / k, 6)))
     assert len(set(seen)) == 1, seen
+
+
+def test_reference_with_darks_is_compared_and_a_dummy_named(tmp_path):
+    from ipc_taichi.calibrate import reffiles
+    from ipc_taichi.calibrate.report import summary_lines
+
+    forward = np.array([[0.0, 0.006, 0.0], [0.006, 0.976, 0.006], [0.0, 0.006, 0.0]])
+    hdu = fits.PrimaryHDU()
+    hdu.header["REFTYPE"] = "IPC"
+    hdu.header["TELESCOP"] = "JWST"
+    hdu.header["PEDIGREE"] = "DUMMY"
+    ref = tmp_path / "jwst_ipc.fits"
+    fits.HDUList([hdu, fits.ImageHDU(reffiles.invert_kernel(forward), name="SCI")]).writeto(ref)
+    ramp = mapgen.dark_ramp((96, 96), ngroups=3, n_hot=60, mapped=False, seed=12)
+    dark = str(tmp_path / "dark.fits")
+    fits.HDUList([fits.PrimaryHDU(), fits.ImageHDU(ramp["sci"], name="SCI")]).writeto(dark)
+    result = calibrate([dark], reference=str(ref), gain=2.0, bunit="DN", measure_map=False)
+    lines = [x for x in summary_lines(result["report"], result["model"])
+             if "reference" in x.split(":")[0]]
+    assert len(lines) == 1 and lines[0].startswith("DUMMY reference (PEDIGREE = 'DUMMY'")
+    assert "0.600 % against" in lines[0] and "measured at (10 ke-, 0)" in lines[0]

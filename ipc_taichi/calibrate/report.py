@@ -18,7 +18,8 @@ import numpy as np
 from ..fitsio import write_json
 from .hotpixels import DIRECTIONS
 
-__all__ = ["write_report", "write_figures", "json_ready", "summary_lines", "map_lines"]
+__all__ = ["write_report", "write_figures", "json_ready", "summary_lines", "map_lines",
+           "reference_lines"]
 
 
 def json_ready(value):
@@ -94,6 +95,8 @@ def summary_lines(document, model):
             parts.append(f"{name} {_pm(r['residual'], r['error'], 100, '+.3f', ' %')}")
         lines.append(f"held-out hot pixels ({t['chosen']['n_pixels']}), neighbour residual: "
                      + "; ".join(parts))
+    lines += reference_lines(document.get("reference"), model, bool(document.get("fit", {})
+                                                                   .get("points")))
     lines += map_lines(document.get("bond_map"))
     lines += [f"assumption tested: {a['note']}" for a in document.get("assumptions") or []]
     for line in document.get("not_measured", []):
@@ -103,6 +106,25 @@ def summary_lines(document, model):
     for line in document.get("notes", []):
         lines.append(f"note: {line}")
     return lines
+
+
+def reference_lines(ref, model, measured):
+    """The console's comparison of a reference file with what was measured
+    (a DUMMY reference named as such)."""
+    if not ref:
+        return []
+    pedigree = str(ref.get("pedigree") or "").upper()
+    name = (f"DUMMY reference (PEDIGREE = {ref['pedigree']!r}: a placeholder, not a "
+            "measurement)" if pedigree.startswith("DUMMY") else "reference")
+    x = ref.get("coupling_x")
+    if x is None:
+        return [f"{name}: {ref['file']}: {ref.get('law')}"]
+    if not measured:
+        return [f"{name}: {ref['file']}: nearest coupling (x) {100 * x:.3f} %; nothing "
+                "measured: the model is the reference's"]
+    m = float(model.law.alpha(1e4, 0.0) * model.geometry.weight(0, 1))
+    return [f"{name}: {ref['file']}: nearest coupling (x) {100 * x:.3f} % against "
+            f"{100 * m:.3f} % measured at (10 ke-, 0) ({100 * (m / x - 1):+.1f} %)"]
 
 
 def map_lines(section):

@@ -403,7 +403,8 @@ def calibrate(darks=(), flats=(), reference=None, output=None, *, report_path=No
     if reference is not None:
         law_ref, geo_ref, info = reffiles.read_reference(reference)
         ref = {"file": reference, "law": law_ref.describe(), "geometry": geo_ref.describe(),
-               **info}
+               "coupling_x": float(law_ref.alpha(1e4, 0.0) * geo_ref.weight(0, 1)),
+               "pedigree": _pedigree(reference), **info}
 
     k = hot.folds(folds)
 
@@ -476,6 +477,16 @@ def calibrate(darks=(), flats=(), reference=None, output=None, *, report_path=No
     if figures is not None:
         document["figures"] = report.write_figures(figures, document, law, geometry)
     return {"model": model, "report": document, "output": output}
+
+
+def _pedigree(path):
+    """The PEDIGREE of a FITS reference file (None when absent or not FITS)."""
+    try:
+        from astropy.io import fits
+
+        return str(fits.getval(path, "PEDIGREE")).strip() or None
+    except Exception:  # ASDF, or no such keyword: the reader's own info says the rest
+        return None
 
 
 def _constant_unless_better(fit, check, points_for, law, geometry):
