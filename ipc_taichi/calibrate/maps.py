@@ -44,6 +44,7 @@ decoupling is bit-identical to the law's).
 import math
 
 import numpy as np
+from scipy import ndimage
 
 from .. import decouple
 from ..bondmap import BondMap
@@ -153,12 +154,15 @@ def read_noise_covariance(dark_frames, shape):
         if f.shape2d != tuple(shape) or f.data.shape[1] < 3 or f.meta.get("layout") != "ramp":
             continue
         images, ints = _differences(f)
-        level = np.nanmedian(f.data[:, -1] - f.data[:, 0], axis=0)
-        med = np.nanmedian(level)
-        sig = 1.4826 * np.nanmedian(np.abs(level - med))
-        from scipy import ndimage
-
-        hot = ndimage.maximum_filter((level > med + 10 * max(sig, 1e-9)).astype(np.uint8),
+        rise = np.where(f.mask[:, -1] | f.mask[:, 0], np.nan, f.data[:, -1] - f.data[:, 0])
+        n = np.sum(np.isfinite(rise), axis=0)
+        level = np.where(n > 0, np.nansum(rise, axis=0) / np.maximum(n, 1), np.nan)
+        good = level[np.isfinite(level)]
+        if good.size < 100:
+            continue
+        med = np.median(good)
+        sig = 1.4826 * np.median(np.abs(good - med))
+        hot = ndimage.maximum_filter((~(level <= med + 10 * max(sig, 1e-9))).astype(np.uint8),
                                      size=5) > 0
         for img, i in zip(images, ints):
             sums.add(np.where(hot, np.nan, img), i % 2)
