@@ -70,41 +70,45 @@ MIN_SPREAD = 0.01
 FLAT_TEST_ERROR = 0.2
 """Largest median error per super-pixel of held-out flats that can test a map."""
 """Fewest super-pixels per axis for a map."""
+BASE = SUPERPIXELS[0]
+"""The flats' covariance sums are kept on blocks of this many pixels."""
 LAGS = ((0, 1), (1, 0))
 """The bonds measured: x ``(0, 1)`` and y ``(1, 0)``."""
 
 
 class NoiseSums:
-    """Per-pixel sums of noise products at lags (0, 0), (0, 1), (1, 0), per fold
-    (two folds: even and odd integrations / frames); a super-pixel's (or the
-    array's) covariance is a block sum of them."""
+    """Sums of noise products at lags (0, 0), (0, 1), (1, 0) on blocks of
+    :data:`BASE` pixels (a pair counts in the block of its first pixel), per
+    fold (two folds: even and odd integrations / frames); a super-pixel's (or
+    the array's) covariance is a sum of blocks."""
 
     def __init__(self, shape):
         self.shape = tuple(shape)
-        zeros = {lag: np.zeros((2,) + self.shape) for lag in ((0, 0),) + LAGS}
-        self.sum = {k: v.copy() for k, v in zeros.items()}
-        self.sq = {k: v.copy() for k, v in zeros.items()}
-        self.n = {k: v.copy() for k, v in zeros.items()}
+        grid = (2, -(-self.shape[0] // BASE), -(-self.shape[1] // BASE))
+        self.sum = {lag: np.zeros(grid) for lag in ((0, 0),) + LAGS}
+        self.sq = {lag: np.zeros(grid) for lag in self.sum}
+        self.n = {lag: np.zeros(grid) for lag in self.sum}
 
     def add(self, image, fold):
         """Add one noise image (NaN: not used) to ``fold`` (0 or 1)."""
+        ny, nx = self.shape
         for lag in self.sum:
             dy, dx = lag
-            a = image[:image.shape[0] - dy, :image.shape[1] - dx]
-            b = image[dy:, dx:]
-            p = a * b
+            p = np.full(self.shape, np.nan)
+            p[:ny - dy, :nx - dx] = image[:ny - dy, :nx - dx] * image[dy:, dx:]
             ok = np.isfinite(p)
             p = np.where(ok, p, 0.0)
-            self.sum[lag][fold, :a.shape[0], :a.shape[1]] += p
-            self.sq[lag][fold, :a.shape[0], :a.shape[1]] += p * p
-            self.n[lag][fold, :a.shape[0], :a.shape[1]] += ok
+            self.sum[lag][fold] += _blocks(p, BASE)
+            self.sq[lag][fold] += _blocks(p * p, BASE)
+            self.n[lag][fold] += _blocks(ok.astype(np.float64), BASE)
 
     def covariance(self, s, folds=(0, 1)):
-        """Per super-pixel of ``s`` pixels (``s`` None: the whole array):
-        ``{lag: (cov, error)}`` of arrays ``(nj, ni)``."""
+        """Per super-pixel of ``s`` pixels (a multiple of :data:`BASE`; None: the
+        whole array): ``{lag: (cov, error)}`` of arrays ``(nj, ni)``."""
         out = {}
         for lag in self.sum:
-            tot = [_blocks(getattr(self, name)[lag][list(folds)].sum(axis=0), s)
+            tot = [_blocks(getattr(self, name)[lag][list(folds)].sum(axis=0),
+                           None if s is None else s // BASE)
                    for name in ("sum", "sq", "n")]
             n = np.maximum(tot[2], 1)
             mean = tot[0] / n
@@ -127,20 +131,29 @@ def _blocks(a, s):
 
 def _differences(f):
     """Noise images of one input (ramps: group differences; frames: the
-    frames) as ``(images (n, ny, nx) with NaN masked, integration of each)``,
-    each pixel's mean over the images taken out (scaled to keep the variance)."""
+    frames), one at a time as ``(image with NaN masked, integration)``, each
+    pixel's mean over the images taken out (scaled to keep the variance)."""
     d, m = f.data, f.mask
-    if f.meta.get("layout") == "ramp" and d.shape[1] > 1:
-        diff = d[:, 1:] - d[:, :-1]
-        bad = m[:, 1:] | m[:, :-1]
-    else:
-        diff, bad = d, m
-    ints = np.repeat(np.arange(diff.shape[0]), diff.shape[1])
-    diff = np.where(bad, np.nan, diff).reshape((-1,) + d.shape[-2:])
-    n = np.sum(np.isfinite(diff), axis=0)
-    mean = np.where(n > 1, np.nansum(diff, axis=0) / np.maximum(n, 1), np.nan)
+    ramp = f.meta.get("layout") == "ramp" and d.shape[1] > 1
+
+    def images():
+        for i in range(d.shape[0]):
+            if ramp:
+                for g in range(1, d.shape[1]):
+                    yield np.where(m[i, g] | m[i, g - 1], np.nan, d[i, g] - d[i, g - 1]), i
+            else:
+                for g in range(d.shape[1]):
+                    yield np.where(m[i, g], np.nan, d[i, g]), i * d.shape[1] + g
+
+    total, n = np.zeros(d.shape[-2:]), np.zeros(d.shape[-2:])
+    for img, _ in images():
+        ok = np.isfinite(img)
+        total += np.where(ok, img, 0.0)
+        n += ok
+    mean = np.where(n > 1, total / np.maximum(n, 1), np.nan)
     scale = np.sqrt(n / np.maximum(n - 1.0, 1.0))
-    return (diff - mean) * scale, ints
+    for img, k in images():
+        yield (img - mean) * scale, k
 
 
 def read_noise_covariance(dark_frames, shape):
@@ -153,7 +166,6 @@ def read_noise_covariance(dark_frames, shape):
     for f in dark_frames:
         if f.shape2d != tuple(shape) or f.data.shape[1] < 3 or f.meta.get("layout") != "ramp":
             continue
-        images, ints = _differences(f)
         rise = np.where(f.mask[:, -1] | f.mask[:, 0], np.nan, f.data[:, -1] - f.data[:, 0])
         n = np.sum(np.isfinite(rise), axis=0)
         level = np.where(n > 0, np.nansum(rise, axis=0) / np.maximum(n, 1), np.nan)
@@ -164,7 +176,7 @@ def read_noise_covariance(dark_frames, shape):
         sig = 1.4826 * np.median(np.abs(good - med))
         hot = ndimage.maximum_filter((~(level <= med + 10 * max(sig, 1e-9))).astype(np.uint8),
                                      size=5) > 0
-        for img, i in zip(images, ints):
+        for img, i in _differences(f):
             sums.add(np.where(hot, np.nan, img), i % 2)
         used = True
     if not used:
@@ -180,11 +192,10 @@ def flat_noise_sums(flat_frames, shape):
     for f in flat_frames:
         if f.shape2d != tuple(shape):
             continue
-        images, ints = _differences(f)
-        if images.shape[0] < 2:
+        if f.data.shape[0] * f.data.shape[1] < 3:
             continue
-        for k, (img, i) in enumerate(zip(images, ints)):
-            sums.add(img, (i if f.meta.get("layout") == "ramp" else k) % 2)
+        for img, k in _differences(f):
+            sums.add(img, k % 2)
         used = True
     return sums if used else None
 
