@@ -46,7 +46,7 @@ def read_noise_correlation(read_cov, flat_levels, alpha):
     corr = {f"{dy},{dx}": {"value": c[0] / var, "error": c[1] / var}
             for (dy, dx), c in cov.items() if (dy, dx) != (0, 0)}
     worst = max(corr.values(), key=lambda c: abs(c["value"]))
-    significant = abs(worst["value"]) > SIGMA * worst["error"]
+    significant = any(abs(c["value"]) > SIGMA * c["error"] for c in corr.values())
     effect = None
     if flat_levels and alpha:
         # per read, the covariance is half that of a difference of two reads

@@ -60,6 +60,9 @@ __all__ = ["SUPERPIXELS", "MAP_PRECISION", "MAP_MARGIN", "MIN_GRID", "NoiseSums"
 
 SUPERPIXELS = (8, 16, 32, 64, 128, 256)
 """Super-pixel sizes tried [pixels], smallest first."""
+MIN_DOF = 10
+"""Fewest degrees of freedom of the hot pixels' scatter within super-pixels
+that scale their errors (fewer: the scatter about the array's mean)."""
 MAP_PRECISION = 0.10
 """Median relative error per super-pixel the size is chosen for."""
 MAP_MARGIN = 3.0
@@ -219,20 +222,24 @@ def _flat_ratio(sums, s, folds, read_cov):
     return out
 
 
-def hot_pixel_factors(events, nx, law, geometry, read_noise):
+def hot_pixel_factors(events, nx, law, geometry, noise, min_signal=0.0):
     """Per hot pixel: ``y, x`` and the local map value of the x and y bonds
-    with its expected error (read noise over the charge each neighbour holds).
+    with its expected error (``noise``, a neighbour's noise [e-], over the
+    charge each neighbour holds).
 
     Each pixel's measurement of largest charge per integration is used (the
-    groups of a ramp share its charge; the last has the least relative read
-    noise); several integrations are averaged."""
+    groups of a ramp share its charge; the last has the least relative
+    noise); several integrations are averaged. Measurements below
+    ``min_signal`` [e-] are left out."""
+    keep = np.asarray(events["signal"], float) >= float(min_signal)
+    events = {k: np.asarray(v)[keep] for k, v in events.items()}
     s = np.asarray(events["signal"], float)
     frac = np.asarray(events["fraction"], float).reshape(-1, 5, 5)
     pixel = np.asarray(events["pixel"])
     key = pixel * 4096 + np.asarray(events["event"]) % 4096
     order = np.lexsort((-s, key))
     first = order[np.r_[True, key[order][1:] != key[order][:-1]]]
-    rn = float(read_noise) if read_noise else 1.0
+    rn = float(noise) if noise else 1.0
     out = {}
     for lag, sides in (((0, 1), (frac[:, 2, 3], frac[:, 2, 1])),
                        ((1, 0), (frac[:, 3, 2], frac[:, 1, 2]))):
@@ -262,7 +269,11 @@ def _hot_grid(factors, keep, s, grid):
         resid = (v - mean[flat]) ** 2 * w
         cnt = np.bincount(flat, minlength=size)
         dof = np.sum(np.maximum(cnt - 1, 0))
-        chi2 = float(resid.sum() / dof) if dof > 0 else 1.0
+        if dof >= MIN_DOF:
+            chi2 = float(resid.sum() / dof)
+        else:  # too few pixels share a super-pixel: their scatter about the array's mean
+            m0 = np.sum(w * v) / np.sum(w)
+            chi2 = float(np.sum(w * (v - m0) ** 2) / max(v.size - 1, 1))
         err = np.where(den > 0, np.sqrt(max(chi2, 1.0) / np.maximum(den, 1e-300)), np.inf)
         out[lag] = (mean.reshape(grid), err.reshape(grid))
     return out
@@ -489,7 +500,11 @@ def measure_map(dark_frames, flat_frames, hot, law, geometry, read_noise, shape=
     factors, nx = None, shape[1]
     same = all(f.shape2d == shape for f in dark_frames)
     if hot.events is not None and same:
-        factors = hot_pixel_factors(hot.events, nx, law, geometry, read_noise)
+        factors = hot_pixel_factors(hot.events, nx, law, geometry,
+                                    hot.floors["bins"] / hotpixels.BIN_FLOOR_READ_NOISE,
+                                    min_signal=hot.floors["score"])
+        if not len(factors["pixel"]):
+            factors = None
     out = {"bonds": None, "written": False, "shape": list(shape), "read_cov": read_cov,
            "read_noise_correlation": (None if read_cov is None else
                                       {f"{dy},{dx}": c for (dy, dx), c
