@@ -431,16 +431,10 @@ def calibrate(darks=(), flats=(), reference=None, output=None, *, report_path=No
             min_signal=hot.floors["score"], bin_floor=hot.floors["bins"])
         law, geometry = _constant_unless_better(fit, transfer_check, points_for, law, geometry)
     _say_why_empty(transfer_check, hot, darks, not_measured)
-    bond_map = None
-    if measure_map and (hot.events is not None or flat is not None):
-        bond_map = maps.measure_map(dark_frames, flat_frames, hot, law, geometry, rn)
+    bond_map, tested = _map_and_assumptions(dark_frames, flat_frames, hot, flat, law, geometry,
+                                            rn, effects, measure_map)
     model = CouplingModel.resolve(law, geometry, "zero",
                                   bonds=bond_map["bonds"] if bond_map else None)
-    levels = [r["level"] for r in flat.rows if r.get("terms")] if flat else []
-    tested = [assumptions.read_noise_correlation(
-                  bond_map.pop("read_cov", None) if bond_map else None, levels,
-                  float(law.alpha(1e4, 1e4))),
-              assumptions.hot_pixel_brighter_fatter(hot.slope(), effects["brighter_fatter"])]
     nl_ipc = _nonlinear_ipc(fit, effects.pop("flat_ramp_nonlinear_ipc"))
     provenance = {"software": f"ipc_taichi {__version__}", "command": "calibrate",
                   "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
@@ -477,6 +471,21 @@ def calibrate(darks=(), flats=(), reference=None, output=None, *, report_path=No
     if figures is not None:
         document["figures"] = report.write_figures(figures, document, law, geometry)
     return {"model": model, "report": document, "output": output}
+
+
+def _map_and_assumptions(dark_frames, flat_frames, hot, flat, law, geometry, rn, effects,
+                         measure_map):
+    """The IPC map (:mod:`.maps`, None when not asked or nothing can measure
+    it) and the two assumptions tested (:mod:`.assumptions`)."""
+    bond_map = None
+    if measure_map and (hot.events is not None or flat is not None):
+        bond_map = maps.measure_map(dark_frames, flat_frames, hot, law, geometry, rn)
+    levels = [r["level"] for r in flat.rows if r.get("terms")] if flat else []
+    tested = [assumptions.read_noise_correlation(
+                  bond_map.pop("read_cov", None) if bond_map else None, levels,
+                  float(law.alpha(1e4, 1e4))),
+              assumptions.hot_pixel_brighter_fatter(hot.slope(), effects["brighter_fatter"])]
+    return bond_map, tested
 
 
 def _pedigree(path):
