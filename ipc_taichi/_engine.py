@@ -46,7 +46,7 @@ from ._device import (
 from ._frames import finite_sum
 from ._inputs import Frames, as_result, as_stack
 from ._kernels import KernelConfig, get_frame_kernels, get_step_kernel, kernel_law_kind
-from ._lanes import LANES
+from ._lanes import LANES, aligned_zeros, padded_width
 from ._warm import WarmStart
 from ._workspace import STRIP_ROWS, Workspace, interior
 from .errors import IPCInputError
@@ -107,9 +107,11 @@ def cached_workspaces():
 
 
 def clear_workspaces():
-    """Free every cached workspace (their memory goes back to Taichi or NumPy)."""
+    """Free every cached workspace (their memory goes back to Taichi or NumPy),
+    and the bond maps' kernel copies."""
     with ENGINE_LOCK:
         _workspaces.clear()
+        _bond_cache.clear()
 
 
 def workspace_cache_info():
@@ -157,6 +159,48 @@ def _model_arrays(model, info, device_buffers):
     return hit
 
 
+_bond_cache = collections.OrderedDict()
+
+
+def _bond_arrays(bonds, info, config, device_buffers):
+    """The bond map as the step kernels read it (cached: one copy per map,
+    layout and precision): padded by the geometry's reach with the map's edge
+    rule (:meth:`~ipc_taichi.bondmap.BondMap.padded`), in the working precision,
+    at the same index as the padded frames (``lanes``: rows as wide as its
+    frames' padded rows, 64-byte aligned); 3-D ``[k, y, x]`` on the device path,
+    flat on the host (the maps one after the other)."""
+    key = (id(bonds), info.arch, info.precision, config.layout, device_buffers)
+    hit = _bond_cache.get(key)
+    if hit is not None and hit[0] is bonds:
+        _bond_cache.move_to_end(key)
+        return hit[1]
+    padded = bonds.padded(config.reach, info.dtype)
+    if config.layout == "lanes":
+        n, py, px = padded.shape
+        wide = aligned_zeros((n, py, padded_width(px - 2 * config.reach, config.reach,
+                                                  info.precision)), info.dtype)
+        wide[:, :, :px] = padded
+        array = wide.reshape(-1, LANES[info.precision])
+    elif device_buffers:
+        array = _to_taichi(padded)
+    else:
+        array = padded.reshape(-1)
+    while len(_bond_cache) >= WORKSPACES_KEPT:
+        _bond_cache.popitem(last=False)
+    _bond_cache[key] = (bonds, array)
+    return array
+
+
+def _no_bonds(info, device_buffers):
+    """What a step without a map gets for its (unused) ``bonds`` argument."""
+    key = ("none", info.arch, info.precision, device_buffers)
+    hit = _params.get(key)
+    if hit is None:
+        empty = np.zeros((1, 1, 1) if device_buffers else (1,), dtype=info.dtype)
+        hit = _params[key] = _to_taichi(empty) if device_buffers else empty
+    return hit
+
+
 def _to_taichi(array):
     import taichi as ti
 
@@ -175,9 +219,8 @@ class _Run:
     """One call: the model's kernels and arguments, the workspace, the frames."""
 
     def __init__(self, frames, model, info, layout, what):
-        if model.bonds is not None:  # until every layout reads the map: never silently uniform
-            raise IPCInputError("the Taichi kernels do not take a bond map yet: use "
-                                "ipc_taichi.reference.couple_reference / decouple_reference")
+        if model.bonds is not None:
+            model.bonds.check(model.geometry, frames.shape[1:])
         self.frames = frames
         self.info = info
         offsets = tuple(u for u, _ in model.geometry.half_stencil())
@@ -191,11 +234,14 @@ class _Run:
         # host arrays go to the kernels flat (see KernelConfig.flat)
         self.configs = {m: KernelConfig(offsets=offsets, law_kind=kernel_law_kind(model.law),
                                         edge=model.edge, masked=m, precision=info.precision,
-                                        layout=layout, flat=not device_buffers)
+                                        layout=layout, flat=not device_buffers,
+                                        mapped=model.bonds is not None)
                         for m in (False, True)}
         self.copy_frames = device_buffers and not frames.on_device
         self.ws = _workspace(info, frames.shape[1:], self.configs[False], device_buffers)
         self.p, self.w, self.table = _model_arrays(model, info, device_buffers)
+        self.bonds = (_no_bonds(info, device_buffers) if model.bonds is None
+                      else _bond_arrays(model.bonds, info, self.configs[False], device_buffers))
         self.kernels = get_frame_kernels(info.precision)
         # out= is the input (or overlaps it): each frame is kept before it is
         # overwritten, for its bad pixels' values
@@ -300,18 +346,20 @@ class _Run:
         ws = self.ws
         config = self.configs[masked]
         kernel = get_step_kernel(config)
-        ok, table, ring = ws.ok, self.table, ws.ring
+        ok, table, ring, bonds = ws.ok, self.table, ws.ring, self.bonds
         if config.layout == "lanes":  # vectors of L pixels; the measured frame padded
             lanes = LANES[config.precision]
             ok = ws.ok_array() if config.uses_ok else ws.no_ok
             src, base, dst, ok, ring = (_flat(a).reshape(-1, lanes)
                                         for a in (src, ws.measured, dst, ok, ring))
             table = _flat(table)
+            if not config.mapped:  # unused: any vectors
+                bonds = ok
         elif config.flat:
             src, base, dst, ok, table, ring = (_flat(a) for a in (src, base, dst, ok, table,
                                                                   ring))
-        kernel(src, base, dst, ok, self.p, self.w, table, float(sign), ws.partials, ring,
-               ws.strip, ws.shape[1])
+        kernel(src, base, dst, ok, bonds, self.p, self.w, table, float(sign), ws.partials,
+               ring, ws.strip, ws.shape[1])
         return ws.maxima()
 
     def finish(self, k, io, src, out, any_bad):

@@ -78,6 +78,15 @@ two multiply-adds per offset instead of ten operations (1.2-1.4x faster per
 iteration; the same values to rounding: at most one float32 unit, 4e-15
 relative in f64, on the recorded cases).
 
+A bond map (:mod:`ipc_taichi.bondmap`, :attr:`KernelConfig.mapped`) is the
+``bonds`` argument: one array per half-stencil offset, padded like the frames
+with the map's edge rule and read at the same index (flat: the maps one after
+the other; 2-D path: ``[k, y, x]``; ``lanes``: vectors). Each pair's alpha is
+multiplied by its bond's factor where it is computed (``pair``), so a carried
+alpha carries it, both directions use it, and every layout reads the map in
+the one place it evaluates a pair. A step without a map takes the argument and
+never reads it: its code is the map-less one.
+
 Compile-time (``ti.static``) choices form a frozen, hashable config
 (:class:`KernelConfig`); :class:`StepPlan` adds what follows from it (where
 each carried alpha lives), and :func:`get_step_kernel` composes a layout's
@@ -133,6 +142,10 @@ class KernelConfig:
     # as the host path does (Taichi's CPU code reloads a 2-D array's shape at
     # every access); False: 2-D Taichi ndarrays, the device path
     flat: bool = True
+    # a bond map multiplies each pair's alpha (the ``bonds`` argument, one
+    # padded array per half-stencil offset); False: the argument is unused
+    # and the step is the map-less one, unchanged
+    mapped: bool = False
 
     @property
     def reach(self):
@@ -295,7 +308,8 @@ class StepPlan:
         same number ``a``, so ``flow = sum_k (a w[k, 1] S(p+u) + a w[k, 0]
         S(p-u)) - (a sum_k (w[k, 0] + w[k, 1])) S(p)``: 2 multiply-adds per
         offset and one product, instead of 10 operations per offset."""
-        return self.config.law_kind == "constant" and not self.config.uses_ok
+        return (self.config.law_kind == "constant" and not self.config.uses_ok
+                and not self.config.mapped)
 
     @property
     def combined_at(self):
@@ -331,33 +345,33 @@ def _sweep_kernel(plan, coefficients, pixel_flow, emit, starts):
 
     real, r = real_type(plan), plan.config.reach
     ring_prologue, ring_row_ends, row_start, _ = starts
-    frame, vector, mask, scratch, small = arg_types(plan)
+    frame, vector, mask, scratch, small, bond = arg_types(plan)
     cell = access_functions(plan)[0]
     frame_size = make_frame_size(plan)
     larger = make_larger()
 
     @ti.func
     def strip_rows(src: ti.template(), base: ti.template(), dst: ti.template(),
-                   ok: ti.template(), coef: ti.template(),
+                   ok: ti.template(), bonds: ti.template(), coef: ti.template(),
                    table: ti.template(), sign, part: ti.template(), ring: ti.template(), s,
                    i0, i1, wd):
         """Rows i0 .. i1 - 1 of strip s, left to right; its maxima into part[s]."""
         dmax = ti.cast(0.0, real)
         smax = ti.cast(0.0, real)
         if ti.static(plan.rings):
-            ring_prologue(src, ok, table, coef, ring, s, i0, wd)
+            ring_prologue(src, ok, bonds, table, coef, ring, s, i0, wd)
         pw = wd + 2 * r
         for i in range(i0, i1):
             y = i + r
             if ti.static(plan.rings):
-                ring_row_ends(src, ok, table, coef, ring, s, i, wd)
+                ring_row_ends(src, ok, bonds, table, coef, ring, s, i, wd)
             carry = ti.Vector([0.0] * plan.carry_size, dt=real)
             if ti.static(plan.carries_row):
-                row_start(src, ok, table, coef, carry, pw, y)
+                row_start(src, ok, bonds, table, coef, carry, pw, y)
             for j in range(wd):
                 x = j + r
                 sv = cell(src, y, x, pw)
-                flow = pixel_flow(src, ok, coef, table, ring, pw, s, i, y, x, sv, carry)
+                flow = pixel_flow(src, ok, bonds, coef, table, ring, pw, s, i, y, x, sv, carry)
                 v = emit(base, dst, sign, pw, i, j, flow)
                 dmax = larger(dmax, ti.abs(v - sv))
                 smax = larger(smax, ti.abs(v))
@@ -365,8 +379,8 @@ def _sweep_kernel(plan, coefficients, pixel_flow, emit, starts):
         part[s, 1] = smax
 
     @ti.kernel
-    def step_sweep(src: frame, base: frame, dst: frame, ok: mask, p: vector, w: small,
-                   table: frame, sign: real, part: small, ring: scratch, strip: ti.i32,
+    def step_sweep(src: frame, base: frame, dst: frame, ok: mask, bonds: bond, p: vector,
+                   w: small, table: frame, sign: real, part: small, ring: scratch, strip: ti.i32,
                    width: ti.i32):
         size = frame_size(src, base, width)
         h = size[0]
@@ -380,7 +394,7 @@ def _sweep_kernel(plan, coefficients, pixel_flow, emit, starts):
                 s = task // SPREAD
                 coef = coefficients(p, w)
                 i0 = s * strip
-                strip_rows(src, base, dst, ok, coef, table, sign, part, ring, s, i0,
+                strip_rows(src, base, dst, ok, bonds, coef, table, sign, part, ring, s, i0,
                            ti.min(h, i0 + strip), wd)
 
     return step_sweep
@@ -392,15 +406,15 @@ def _pixel_kernel(plan, coefficients, pixel_flow, emit, starts):
 
     real, r = real_type(plan), plan.config.reach
     column_start = starts[3]
-    frame, vector, mask, scratch, small = arg_types(plan)
+    frame, vector, mask, scratch, small, bond = arg_types(plan)
     cell = access_functions(plan)[0]
     frame_size = make_frame_size(plan)
     larger = make_larger()
     shrink, passes = make_tree_reduction()
 
     @ti.kernel
-    def step_pixel(src: frame, base: frame, dst: frame, ok: mask, p: vector, w: small,
-                   table: frame, sign: real, part: small, ring: scratch, strip: ti.i32,
+    def step_pixel(src: frame, base: frame, dst: frame, ok: mask, bonds: bond, p: vector,
+                   w: small, table: frame, sign: real, part: small, ring: scratch, strip: ti.i32,
                    width: ti.i32):
         size = frame_size(src, base, width)
         h = size[0]
@@ -421,11 +435,11 @@ def _pixel_kernel(plan, coefficients, pixel_flow, emit, starts):
             dmax = ti.cast(0.0, real)
             smax = ti.cast(0.0, real)
             carry = ti.Vector([0.0] * plan.carry_size, dt=real)
-            column_start(src, ok, table, coef, carry, pw, i0, x)
+            column_start(src, ok, bonds, table, coef, carry, pw, i0, x)
             for i in range(i0, i1):
                 y = i + r
                 sv = cell(src, y, x, pw)
-                flow = pixel_flow(src, ok, coef, table, ring, pw, 0, i, y, x, sv, carry)
+                flow = pixel_flow(src, ok, bonds, coef, table, ring, pw, 0, i, y, x, sv, carry)
                 v = emit(base, dst, sign, pw, i, j, flow)
                 dmax = larger(dmax, ti.abs(v - sv))
                 smax = larger(smax, ti.abs(v))

@@ -86,9 +86,13 @@ def _pair_functions(plan):
     lanes = LANES[config.precision]
     real = ti.f64 if config.precision == "f64" else ti.f32
     slots, depth = max(1, len(vertical)), config.ring_depth
-    constant, gated = config.law_kind == "constant", config.uses_ok
+    constant, gated, mapped = config.law_kind == "constant", config.uses_ok, config.mapped
     law_at, combined_at, total_at = plan.law_at, plan.combined_at, plan.total_at
     alpha = make_alpha(config.law_kind, config.precision, lanes=lanes)
+    # the map of the bond p -- p + d: the offset u = +-d it is stored under
+    # (k, whether it is stored at the other end, p + d)
+    bond_index = {**{u: (k, 0) for k, u in enumerate(offsets)},
+                  **{(-u[0], -u[1]): (k, 1) for k, u in enumerate(offsets)}}
 
     @ti.func
     def shifted(arr: ti.template(), cb, dx: ti.template(), last):
@@ -111,15 +115,29 @@ def _pair_functions(plan):
         return ti.Vector([coef[law_at + m] for m in ti.static(range(5))], dt=real)
 
     @ti.func
-    def pair(src: ti.template(), ok: ti.template(), table: ti.template(), coef: ti.template(),
-             c, nc, last, sv, okc, dy: ti.template(), dx: ti.template()):
+    def bond(bonds: ti.template(), c, plane, nc, dy: ti.template(), dx: ti.template()):
+        """The factors of the bonds (p, p + (dy, dx)) for the pixels p of vector
+        ``c``: the map of offset ``u = +-(dy, dx)`` (``plane`` vectors each, one
+        after the other), read at p (``u``) or at p - u (``-u``, shifted)."""
+        k, back = ti.static(bond_index[(dy, dx)])
+        if ti.static(back == 0):
+            return bonds[k * plane + c]
+        else:
+            return shifted(bonds, k * plane + c + dy * nc, dx, bonds.shape[0] - 1)
+
+    @ti.func
+    def pair(src: ti.template(), ok: ti.template(), bonds: ti.template(), table: ti.template(),
+             coef: ti.template(), c, nc, last, sv, okc, dy: ti.template(), dx: ti.template()):
         """alpha of the pairs (p, p + (dy, dx)) for the pixels p of vector ``c``
-        (``sv``: their signals, ``okc``: their ``ok``), gated by ``ok``."""
+        (``sv``: their signals, ``okc``: their ``ok``), gated by ``ok``; times
+        the bonds' factors with a map (once per pair: both directions use it)."""
         a = sv * 0.0 + coef[law_at + 4]
         if ti.static(not constant):
             a = alpha(sv, shifted(src, c + dy * nc, dx, last), law(coef), table)
         if ti.static(gated):
             a = a * (okc * shifted(ok, c + dy * nc, dx, last))
+        if ti.static(mapped):
+            a = a * bond(bonds, c, src.shape[0], nc, dy, dx)
         return a
 
     @ti.func
@@ -155,8 +173,9 @@ def _vector_functions(plan):
     shifted, pair, ring_row, combined_flow = _pair_functions(plan)
 
     @ti.func
-    def prologue(src: ti.template(), ok: ti.template(), table: ti.template(),
-                 coef: ti.template(), ring: ti.template(), s, i0, nc, last):
+    def prologue(src: ti.template(), ok: ti.template(), bonds: ti.template(),
+                 table: ti.template(), coef: ti.template(), ring: ti.template(), s, i0, nc,
+                 last):
         """The ring rows of the pairs that start in the dy rows above the strip."""
         for kv in ti.static(range(len(vertical))):
             dy, dx = ti.static(offsets[vertical[kv]])
@@ -168,19 +187,21 @@ def _vector_functions(plan):
                     okc = sv
                     if ti.static(gated):
                         okc = ok[c]
-                    ring[at + j] = pair(src, ok, table, coef, c, nc, last, sv, okc, dy, dx)
+                    ring[at + j] = pair(src, ok, bonds, table, coef, c, nc, last, sv, okc, dy,
+                                        dx)
 
     @ti.func
-    def minus_alpha(src: ti.template(), ok: ti.template(), table: ti.template(),
-                    coef: ti.template(), ring: ti.template(), carry: ti.template(), s, i, j,
-                    c, nc, last, ring_last, sv, okc, a_plus, k: ti.template()):
+    def minus_alpha(src: ti.template(), ok: ti.template(), bonds: ti.template(),
+                    table: ti.template(), coef: ti.template(), ring: ti.template(),
+                    carry: ti.template(), s, i, j, c, nc, last, ring_last, sv, okc, a_plus,
+                    k: ti.template()):
         """The alpha of the pairs (p - u, p) of offset ``k`` for vector ``c``:
         fresh (constant law), carried along the row (``dy == 0``) or read back
         from the ring (``dy > 0``); stores ``a_plus`` for the pixels after."""
         dy, dx = ti.static(offsets[k])
         a_minus = a_plus
         if ti.static(constant):
-            a_minus = pair(src, ok, table, coef, c, nc, last, sv, okc, -dy, -dx)
+            a_minus = pair(src, ok, bonds, table, coef, c, nc, last, sv, okc, -dy, -dx)
         elif ti.static(dy == 0):
             at = ti.static(carried.index(k) * lanes)
             a_minus = ti.Vector([carry[at + q] for q in ti.static(range(lanes - dx, lanes))]
@@ -194,9 +215,9 @@ def _vector_functions(plan):
         return a_minus
 
     @ti.func
-    def vector_flow(src: ti.template(), ok: ti.template(), table: ti.template(),
-                    coef: ti.template(), ring: ti.template(), carry: ti.template(), s, i, j,
-                    c, nc, last, ring_last, sv):
+    def vector_flow(src: ti.template(), ok: ti.template(), bonds: ti.template(),
+                    table: ti.template(), coef: ti.template(), ring: ti.template(),
+                    carry: ti.template(), s, i, j, c, nc, last, ring_last, sv):
         """The coupling term of the pixels of vector ``c`` (row ``i``, vector ``j``)."""
         okc = sv
         if ti.static(gated):
@@ -206,8 +227,8 @@ def _vector_functions(plan):
             flow = combined_flow(src, coef, c, nc, last, sv)
         for k in ti.static(range(len(offsets) if not plan.combined else 0)):
             dy, dx = ti.static(offsets[k])
-            a_plus = pair(src, ok, table, coef, c, nc, last, sv, okc, dy, dx)
-            a_minus = minus_alpha(src, ok, table, coef, ring, carry, s, i, j, c, nc, last,
+            a_plus = pair(src, ok, bonds, table, coef, c, nc, last, sv, okc, dy, dx)
+            a_minus = minus_alpha(src, ok, bonds, table, coef, ring, carry, s, i, j, c, nc, last,
                                   ring_last, sv, okc, a_plus, k)
             wp = coef[2 * k]  # weight of the move p -> p+u
             wm = coef[2 * k + 1]  # weight of the move p -> p-u
@@ -257,9 +278,9 @@ def lanes_kernel(plan, coefficients, spread):
     largest, magnitude = _lane_functions(lanes)
 
     @ti.kernel
-    def step_lanes(src: vectors, base: vectors, dst: vectors, ok: vectors, p: scalars,
-                   w: small, table: scalars, sign: real, part: small, ring: vectors,
-                   strip: ti.i32, width: ti.i32):
+    def step_lanes(src: vectors, base: vectors, dst: vectors, ok: vectors, bonds: vectors,
+                   p: scalars, w: small, table: scalars, sign: real, part: small,
+                   ring: vectors, strip: ti.i32, width: ti.i32):
         nc = (width + 2 * r + lanes - 1) // lanes
         h = src.shape[0] // nc - 2 * r
         last = src.shape[0] - 1
@@ -274,7 +295,7 @@ def lanes_kernel(plan, coefficients, spread):
                 i0 = s * strip
                 i1 = ti.min(h, i0 + strip)
                 if ti.static(rings):
-                    prologue(src, ok, table, coef, ring, s, i0, nc, last)
+                    prologue(src, ok, bonds, table, coef, ring, s, i0, nc, last)
                 dmax = ti.Vector([0.0] * lanes, dt=real)
                 smax = ti.Vector([0.0] * lanes, dt=real)
                 for i in range(i0, i1):
@@ -282,8 +303,8 @@ def lanes_kernel(plan, coefficients, spread):
                     for j in range(nc):
                         c = (i + r) * nc + j
                         sv = src[c]
-                        v = base[c] + sign * vector_flow(src, ok, table, coef, ring, carry, s,
-                                                         i, j, c, nc, last, ring_last, sv)
+                        v = base[c] + sign * vector_flow(src, ok, bonds, table, coef, ring, carry,
+                                                         s, i, j, c, nc, last, ring_last, sv)
                         # border lanes (columns outside the frame) stay zero
                         x = ti.Vector([float(q) for q in ti.static(range(lanes))], dt=real) \
                             + ti.cast(j * lanes, real)

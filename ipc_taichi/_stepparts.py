@@ -10,7 +10,7 @@ carried into a strip, row or column run (:func:`start_functions`), the maxima's
 
 from ._alpha import make_alpha
 
-__all__ = ["make_larger", "access_functions", "law_functions", "flow_functions",
+__all__ = ["make_larger", "access_functions", "make_bond", "law_functions", "flow_functions",
            "start_functions", "arg_types", "make_frame_size", "real_type"]
 
 
@@ -81,6 +81,32 @@ def access_functions(plan):
     return cell, put, ring_cell, ring_put
 
 
+def make_bond(plan):
+    """``bond(bonds, src, y, x, pw, dy, dx)``: the factor of the bond (y, x) --
+    (y + dy, x + dx) (padded coordinates), read from the padded map of its
+    half-stencil offset ``u = +-(dy, dx)``, stored at the end where ``u``
+    starts (see :mod:`ipc_taichi.bondmap`). Flat: the maps one after the
+    other, each as long as the flat padded frame ``src``; else 3-D ``[k, y, x]``."""
+    import taichi as ti
+
+    offsets, flat = plan.config.offsets, plan.config.flat
+    # the map of the bond p -- p + d: the offset u = +-d it is stored under
+    # (k, whether it is stored at the other end, p + d)
+    bond_index = {**{u: (k, 0) for k, u in enumerate(offsets)},
+                  **{(-u[0], -u[1]): (k, 1) for k, u in enumerate(offsets)}}
+
+    @ti.func
+    def bond(bonds: ti.template(), src: ti.template(), y, x, pw, dy: ti.template(),
+             dx: ti.template()):
+        k, back = ti.static(bond_index[(dy, dx)])
+        if ti.static(flat):
+            return bonds[k * src.shape[0] + (y + back * dy) * pw + x + back * dx]
+        else:
+            return bonds[k, y + back * dy, x + back * dx]
+
+    return bond
+
+
 def law_functions(plan):
     """``(coefficients, pair, pair_of)``: the weights and the law read into
     registers; one pair's alpha (``pair_of``: given the first pixel's signal)."""
@@ -91,6 +117,7 @@ def law_functions(plan):
     alpha = make_alpha(config.law_kind, config.precision, fast_exp=config.layout == "sweep",
                        flat_table=config.flat)
     cell = access_functions(plan)[0]
+    bond = make_bond(plan)
     total_at = plan.total_at
 
     @ti.func
@@ -121,10 +148,12 @@ def law_functions(plan):
         return ti.Vector([coef[law_at + m] for m in ti.static(range(5))], dt=real)
 
     @ti.func
-    def pair_of(src: ti.template(), ok: ti.template(), table: ti.template(),
-                coef: ti.template(), pw, sv, y, x, dy: ti.template(), dx: ti.template()):
+    def pair_of(src: ti.template(), ok: ti.template(), bonds: ti.template(),
+                table: ti.template(), coef: ti.template(), pw, sv, y, x, dy: ti.template(),
+                dx: ti.template()):
         """alpha of the pair (y, x) -- (y + dy, x + dx), padded coordinates
-        (``pw``: the padded width), ``sv`` the signal at (y, x)."""
+        (``pw``: the padded width), ``sv`` the signal at (y, x); times the
+        bond's factor with a map (once per pair: both directions use it)."""
         a = ti.cast(0.0, real)
         if ti.static(constant_law):
             a = coef[law_at + 4]  # what alpha() returns for this law, kept in a register
@@ -132,14 +161,16 @@ def law_functions(plan):
             a = alpha(sv, cell(src, y + dy, x + dx, pw), law(coef), table)
         if ti.static(config.uses_ok):
             a *= ti.cast(cell(ok, y, x, pw) * cell(ok, y + dy, x + dx, pw), real)
+        if ti.static(config.mapped):
+            a *= bond(bonds, src, y, x, pw, dy, dx)
         return a
 
     @ti.func
-    def pair(src: ti.template(), ok: ti.template(), table: ti.template(),
+    def pair(src: ti.template(), ok: ti.template(), bonds: ti.template(), table: ti.template(),
              coef: ti.template(), pw, y, x, dy: ti.template(), dx: ti.template()):
         """alpha of the pair (y, x) -- (y + dy, x + dx) (the law's parameters
         are among ``coef``)."""
-        return pair_of(src, ok, table, coef, pw, cell(src, y, x, pw), y, x, dy, dx)
+        return pair_of(src, ok, bonds, table, coef, pw, cell(src, y, x, pw), y, x, dy, dx)
 
     return coefficients, pair, pair_of
 
@@ -188,7 +219,7 @@ def flow_functions(plan, pair, pair_of):
         return old
 
     @ti.func
-    def pixel_flow(src: ti.template(), ok: ti.template(),
+    def pixel_flow(src: ti.template(), ok: ti.template(), bonds: ti.template(),
                    coef: ti.template(), table: ti.template(), ring: ti.template(), pw, s, i,
                    y, x, sv, carry: ti.template()):
         """The coupling term at padded (y, x) (row ``i`` of the frame); the
@@ -198,7 +229,7 @@ def flow_functions(plan, pair, pair_of):
             flow = combined_flow(src, coef, pw, y, x, sv)
         for k in ti.static(range(len(offsets) if not plan.combined else 0)):
             dy, dx = ti.static(offsets[k])
-            a_plus = pair_of(src, ok, table, coef, pw, sv, y, x, dy, dx)
+            a_plus = pair_of(src, ok, bonds, table, coef, pw, sv, y, x, dy, dx)
             a_minus = ti.cast(0.0, real)
             if ti.static(sources[k] == "row"):
                 a_minus = shift_in(carry, plan.carry_at[k], dx, a_plus)
@@ -209,7 +240,7 @@ def flow_functions(plan, pair, pair_of):
             elif ti.static(sources[k] == "column"):
                 a_minus = shift_in(carry, plan.vcarry_at[k], dy, a_plus)
             else:
-                a_minus = pair(src, ok, table, coef, pw, y - dy, x - dx, dy, dx)
+                a_minus = pair(src, ok, bonds, table, coef, pw, y - dy, x - dx, dy, dx)
             flow = pair_flow(flow, src, coef, pw, y, x, sv, k, a_plus, a_minus)
         return flow
 
@@ -233,7 +264,7 @@ def start_functions(plan, pair):
     ring_put = access_functions(plan)[3]
 
     @ti.func
-    def ring_prologue(src: ti.template(), ok: ti.template(),
+    def ring_prologue(src: ti.template(), ok: ti.template(), bonds: ti.template(),
                       table: ti.template(), coef: ti.template(), ring: ti.template(), s, i0,
                       wd):
         """Sweep: the pairs that start in the dy rows above the strip."""
@@ -242,10 +273,11 @@ def start_functions(plan, pair):
             for row in range(i0 - dy, i0):
                 for c in range(plan.prologue_lo[kv], wd + plan.right_extra[kv]):
                     ring_put(ring, s, kv, row + r, c + r, wd + 2 * r,
-                             pair(src, ok, table, coef, wd + 2 * r, row + r, c + r, dy, dx))
+                             pair(src, ok, bonds, table, coef, wd + 2 * r, row + r, c + r,
+                                  dy, dx))
 
     @ti.func
-    def ring_row_ends(src: ti.template(), ok: ti.template(),
+    def ring_row_ends(src: ti.template(), ok: ti.template(), bonds: ti.template(),
                       table: ti.template(), coef: ti.template(), ring: ti.template(), s, i,
                       wd):
         """Sweep: row i's pairs starting beyond its ends that later rows read back."""
@@ -254,25 +286,25 @@ def start_functions(plan, pair):
         for kv in ti.static(range(len(vertical))):
             dy, dx = ti.static(offsets[vertical[kv]])
             for c in ti.static(plan.left_extra[kv]):
-                ring_put(ring, s, kv, y, c + r, pw, pair(src, ok, table, coef, pw, y, c + r,
-                                                        dy, dx))
+                ring_put(ring, s, kv, y, c + r, pw, pair(src, ok, bonds, table, coef, pw, y,
+                                                        c + r, dy, dx))
             for c in range(wd, wd + plan.right_extra[kv]):
-                ring_put(ring, s, kv, y, c + r, pw, pair(src, ok, table, coef, pw, y, c + r,
-                                                        dy, dx))
+                ring_put(ring, s, kv, y, c + r, pw, pair(src, ok, bonds, table, coef, pw, y,
+                                                        c + r, dy, dx))
 
     @ti.func
-    def row_start(src: ti.template(), ok: ti.template(),
+    def row_start(src: ti.template(), ok: ti.template(), bonds: ti.template(),
                   table: ti.template(), coef: ti.template(), carry: ti.template(), pw, y):
         """Sweep: the horizontal pairs left of column 0, into the row registers."""
         for k in ti.static(range(len(offsets))):
             dy, dx = ti.static(offsets[k])
             if ti.static(plan.sources[k] == "row"):
                 for m in ti.static(range(dx)):
-                    carry[plan.carry_at[k] + m] = pair(src, ok, table, coef, pw, y,
+                    carry[plan.carry_at[k] + m] = pair(src, ok, bonds, table, coef, pw, y,
                                                        r - dx + m, 0, dx)
 
     @ti.func
-    def column_start(src: ti.template(), ok: ti.template(),
+    def column_start(src: ti.template(), ok: ti.template(), bonds: ti.template(),
                      table: ti.template(), coef: ti.template(), carry: ti.template(), pw, i0,
                      x):
         """Pixel: the vertical pairs (dy, 0) that end in the run's first dy rows."""
@@ -280,16 +312,17 @@ def start_functions(plan, pair):
             dy, dx = ti.static(offsets[k])
             if ti.static(plan.sources[k] == "column"):
                 for m in ti.static(range(dy)):
-                    carry[plan.vcarry_at[k] + m] = pair(src, ok, table, coef, pw,
+                    carry[plan.vcarry_at[k] + m] = pair(src, ok, bonds, table, coef, pw,
                                                         i0 + r - dy + m, x, dy, 0)
 
     return ring_prologue, ring_row_ends, row_start, column_start
 
 
 def arg_types(plan):
-    """The step kernels' argument types: (frame, vector, mask, scratch, small):
-    frames, the ``ok`` mask, the ring and the law's table 1-D with
-    :attr:`~ipc_taichi._kernels.KernelConfig.flat`; ``w`` and ``part`` (small) always 2-D."""
+    """The step kernels' argument types: (frame, vector, mask, scratch, small,
+    bond): frames, the ``ok`` mask, the ring, the law's table and the bond maps
+    1-D with :attr:`~ipc_taichi._kernels.KernelConfig.flat` (else the maps 3-D,
+    ``[k, y, x]``); ``w`` and ``part`` (small) always 2-D."""
     import taichi as ti
 
     real, flat = real_type(plan), plan.config.flat
@@ -297,7 +330,8 @@ def arg_types(plan):
     return (ti.types.ndarray(dtype=real, ndim=1 if flat else 2),
             ti.types.ndarray(dtype=real, ndim=1), ti.types.ndarray(dtype=ti.u8,
                                                                    ndim=1 if flat else 2),
-            ti.types.ndarray(dtype=real, ndim=1 if flat else 4), small)
+            ti.types.ndarray(dtype=real, ndim=1 if flat else 4), small,
+            ti.types.ndarray(dtype=real, ndim=1 if flat else 3))
 
 
 def make_frame_size(plan):

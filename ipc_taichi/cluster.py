@@ -24,12 +24,14 @@ worker ran one thread per core and two workers were no faster than one.
   stopping rule is decided first, from per-tile maxima computed on the workers.
 """
 
+import dataclasses
 import functools
 import os
 
 import numpy as np
 
 from . import iteration
+from .bondmap import BondMap
 from .decoupling import decouple
 from .errors import IPCInputError
 from .gpus import gpu_cluster
@@ -217,12 +219,17 @@ def decouple_stack(cube, client, **options):
     return client.compute(y).result()
 
 
-def _decouple_fixed(block, n, options):
-    """``n`` Jacobi iterations on one overlapped block (map_overlap's function)."""
+def _decouple_fixed(block, *bonds, n, options, offsets=None):
+    """``n`` Jacobi iterations on one overlapped block (map_overlap's function);
+    ``bonds``: the model's bond map over the same block (one array per offset
+    of ``offsets``), the model in ``options`` without its map."""
+    if bonds:
+        options = dict(options, model=dataclasses.replace(
+            options["model"], bonds=BondMap(offsets, np.stack(bonds))))
     return np.asarray(decouple(block, max_iter=n, tol=0, **options), dtype=np.float64)
 
 
-def _tile_job(core, frame, shape, halo, n, model, arch, precision):
+def _tile_job(core, frame, model, shape, halo, n, arch, precision):
     return tile_maxima(lambda window: frame[window], shape, core, halo, n, model, arch,
                        precision)
 
@@ -247,11 +254,13 @@ def decouple_mosaic(measured, client, chunk=1024, law=None, geometry=None,
     # law= with model= is refused, as ipc_taichi.decouple refuses it
     model = CouplingModel.resolve(law, geometry, edge, model=model)
     shared = client.scatter(frame, broadcast=False)
+    shared_model = client.scatter(model, broadcast=False)  # its bond map, if any, sent once
 
     def mapper(n, halo, cores):
-        job = functools.partial(_tile_job, shape=frame.shape, halo=halo, n=n, model=model,
+        job = functools.partial(_tile_job, shape=frame.shape, halo=halo, n=n,
                                 arch=arch, precision=precision)
-        futures = client.map(job, cores, [shared] * len(cores), pure=False)
+        futures = client.map(job, cores, [shared] * len(cores), [shared_model] * len(cores),
+                             pure=False)
         for fut in futures:
             yield fut.result()
 
@@ -260,9 +269,13 @@ def decouple_mosaic(measured, client, chunk=1024, law=None, geometry=None,
     n = info.iterations
     depth = halo_for(n, model.geometry)
     x = da.from_array(frame, chunks=chunk)
-    options = dict(model=model, arch=arch, precision=precision)
-    y = x.map_overlap(_decouple_fixed, depth=depth, boundary="none", trim=True,
-                      dtype=np.float64, n=n, options=options)
+    # a bond map goes with the frame, block by block, with the same overlap
+    options = dict(model=dataclasses.replace(model, bonds=None), arch=arch, precision=precision)
+    bonds = [] if model.bonds is None else [da.from_array(b, chunks=chunk)
+                                            for b in model.bonds.values]
+    y = da.map_overlap(_decouple_fixed, x, *bonds, depth=depth, boundary="none", trim=True,
+                       dtype=np.float64, n=n, options=options,
+                       offsets=None if model.bonds is None else model.bonds.offsets)
     out = client.compute(y).result()
     return (out, info) if full_output else out
 

@@ -33,6 +33,7 @@ tile (the product pipeline does this for FITS) or its tiles decoupled on Dask
 workers (``mapper``, :mod:`ipc_taichi.cluster`). This module holds arrays only.
 """
 
+import dataclasses
 import math
 import sys
 
@@ -44,7 +45,8 @@ from .decoupling import DecoupleInfo, decouple
 from .errors import IPCInputError
 from .model import CouplingModel
 
-__all__ = ["tiles", "halo_for", "tile_maxima", "decouple_blocks", "decouple_tiled"]
+__all__ = ["tiles", "halo_for", "tile_maxima", "decouple_blocks", "decouple_tiled",
+           "window_model"]
 
 FIRST_ROUND = 4
 
@@ -52,6 +54,18 @@ FIRST_ROUND = 4
 def halo_for(iterations, geometry):
     """The halo that makes ``iterations`` Jacobi iterations exact: ``iterations * reach``."""
     return int(iterations) * int(geometry.reach)
+
+
+def window_model(model, window):
+    """``model`` for the sub-frame ``window`` (a tuple of slices, a tile with
+    its halo): its bond map cropped there (:meth:`~ipc_taichi.bondmap.BondMap.crop`);
+    a uniform model as it is. The bonds leaving the window are those of the
+    window's edge (the map's edge rule), which only its halo sees."""
+    if model.bonds is None:
+        return model
+    ys, xs = window
+    crop = model.bonds.crop(ys.start, xs.start, ys.stop - ys.start, xs.stop - xs.start)
+    return dataclasses.replace(model, bonds=crop)
 
 
 def tiles(shape, tile):
@@ -103,8 +117,8 @@ def tile_maxima(read, shape, core, halo, n, model, arch=None, precision=None, re
         good &= ~mask[inner]
     last["core"] = np.where(good, measured[inner], np.where(np.isfinite(measured[inner]), 0.0,
                                                             np.nan))
-    signal = decouple(measured, model=model, max_iter=n, tol=0, arch=arch, precision=precision,
-                      callback=record, mask=mask)
+    signal = decouple(measured, model=window_model(model, outer), max_iter=n, tol=0, arch=arch,
+                      precision=precision, callback=record, mask=mask)
     return signal[inner], deltas, signals
 
 
@@ -124,6 +138,8 @@ def decouple_blocks(read, write, shape, tile, model, max_iter=iteration.MAX_ITER
     Does not warn when the rule was not met (callers do, once per frame).
     """
     model = CouplingModel.resolve(model=model)
+    if model.bonds is not None:
+        model.bonds.check(model.geometry, shape)
     max_iter, tol = iteration.check_arguments(max_iter, tol)
     core_tiles = list(tiles(shape, tile))
     rounds = [max_iter] if tol == 0 else sorted(

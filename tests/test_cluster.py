@@ -76,6 +76,27 @@ def test_mosaic_map_overlap_identical(client, cpu):
     assert np.abs(got - whole).max() <= 1e-12 * whole.max()
 
 
+def test_mosaic_and_stack_with_a_bond_map_identical(client, cpu):
+    """Each Dask block gets the map cropped with its overlap (the tiles of the
+    iteration count too), a stack's frames the same map: the whole frame's
+    results."""
+    from ipc_taichi.datasets import star_field
+    from tests.test_bondmap_engine import mapped
+
+    truth = star_field(80, seed=6, n_per_mpix=20000)
+    model = mapped("donlon2018", None, "zero", truth.shape, seed=11)
+    measured = couple_reference(truth, model=model)
+    whole, info = ipc_taichi.decouple(measured, model=model, full_output=True)
+    got, minfo = decouple_mosaic(measured, client, chunk=33, arch="cpu", precision="f64",
+                                 full_output=True, model=model)
+    assert minfo.iterations == info.iterations and minfo.converged
+    assert np.abs(got - whole).max() <= 1e-12 * whole.max()
+    assert np.abs(whole - truth).max() < 0.05
+    cube = np.stack([measured, measured[::-1, ::-1].copy()])
+    stack = decouple_stack(cube, client, arch="cpu", precision="f64", model=model)
+    np.testing.assert_array_equal(stack, ipc_taichi.decouple(cube, model=model))
+
+
 def _die_on_name(src, dst, options):
     """The per-file task, except that a file named *die* kills its worker."""
     from ipc_taichi.cluster import decouple_one_file

@@ -10,12 +10,15 @@ import numpy as np
 import ipc_taichi
 
 from .. import engine, runtime
+from ..bondmap import BondMap
+from ..datasets import uniform_frame
 from ..engine import make_alpha
 from ..laws import donlon2018
+from ..model import CouplingModel
 from ..reference import decouple_numpy, decouple_reference
 
-__all__ = ["measure_row", "measure_floor", "SIZES", "KINDS", "NUMPY_REPEAT_CAP",
-           "REFERENCE_MAX_SIZE"]
+__all__ = ["measure_row", "measure_floor", "measure_bondmap", "SIZES", "KINDS",
+           "NUMPY_REPEAT_CAP", "REFERENCE_MAX_SIZE", "BONDMAP_TARGET"]
 
 SIZES = (512, 2048, 4096)
 KINDS = ("uniform", "stars")
@@ -165,3 +168,58 @@ def measure_row(spec):
         max_error=float(np.abs(np.asarray(out, dtype=np.float64) - truth).max()),
         peak_bytes=int(peak - base_rss), peak_exact=exact_peak)
     return result
+
+
+BONDMAP_TARGET = 1.3  # issue 35: a map may cost at most this much per iteration
+
+
+def measure_bondmap(size=2048, repeats=7, precisions=("f64", "f32"),
+                    laws=("donlon2018", "constant:0.0125")):
+    """The cost of a bond map per Jacobi iteration on the CPU (issue 35's
+    row): each law of ``laws``, nearest neighbours, zero edge, a ``size`` x
+    ``size`` frame, uniform and with a map (a +-12 % gradient across x and a
+    disc 40 % weaker, per bond); per iteration = (time of 5 iterations - time
+    of 1) / 4, so the per-call work cancels; the two interleaved, ``repeats``
+    times, medians. Returns a section for :func:`~ipc_taichi.bench.render.render_section`."""
+    y, x = np.mgrid[0:size, 0:size] / size
+    factor = (1.0 + 0.24 * (x - 0.5)) * np.where((x - 0.6) ** 2 + (y - 0.4) ** 2 < 0.04, 0.6, 1)
+    rows = []
+    for precision in precisions:
+        runtime.init("cpu", precision)
+        measured = ipc_taichi.couple(uniform_frame(size))
+        out = np.empty_like(measured)
+        for law in laws:
+            uniform = CouplingModel.resolve(law)
+            models = {"uniform": uniform, "map": CouplingModel.resolve(
+                law, bonds=BondMap.full(uniform.geometry, factor))}
+            rows.append(_map_row(measured, out, models, repeats, precision, law))
+    engine.clear_workspaces()
+    return {"title": f"A bond map per iteration (issue 35 target: <= {BONDMAP_TARGET}x the "
+                     "uniform law)",
+            "rows": rows,
+            "notes": ["ipc_taichi.bench.cpu.measure_bondmap: nearest neighbours, zero edge, "
+                      "the CPU's default layout (lanes); the map in the working precision; "
+                      "per iteration = (5 iterations - 1) / 4, uniform and map interleaved, "
+                      f"median of {repeats}; spread: the smallest and largest ratio of "
+                      "neighbouring runs. A constant law without a map sums pre-combined "
+                      "coefficients (no alpha per pair); with one each pair's factor is "
+                      "read, as for the other laws."]}
+
+
+def _map_row(measured, out, models, repeats, precision, law):
+    """One row of :func:`measure_bondmap`: ``models`` (``uniform``, ``map``) timed."""
+    per = {name: [] for name in models}
+    for model in models.values():  # JIT and the map's upload outside the timing
+        ipc_taichi.decouple(measured, model=model, tol=0, max_iter=1, out=out)
+    for _ in range(repeats):
+        for name, model in models.items():
+            t0 = time.perf_counter()
+            ipc_taichi.decouple(measured, model=model, tol=0, max_iter=5, out=out)
+            t1 = time.perf_counter()
+            ipc_taichi.decouple(measured, model=model, tol=0, max_iter=1, out=out)
+            per[name].append(((t1 - t0) - (time.perf_counter() - t1)) / 4)
+    u, m = statistics.median(per["uniform"]), statistics.median(per["map"])
+    ratios = [a / b for a, b in zip(per["map"], per["uniform"])]
+    return {"law": law, "precision": precision, "frame": f"{len(measured)}x{len(measured)}",
+            "uniform [ms/iteration]": u * 1e3, "map [ms/iteration]": m * 1e3,
+            "map / uniform": m / u, "spread": f"{min(ratios):.2f}-{max(ratios):.2f}"}

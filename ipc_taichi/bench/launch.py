@@ -18,7 +18,15 @@ from ..datasets import star_field, uniform_frame
 from ..gpus import cuda_present
 from ..reference import couple_reference
 from .cliramp import CLIRAMP_GROUPS, CLIRAMP_SIZE, measure_cliramp
-from .cpu import KINDS, NUMPY_REPEAT_CAP, REFERENCE_MAX_SIZE, SIZES, measure_floor, measure_row
+from .cpu import (
+    KINDS,
+    NUMPY_REPEAT_CAP,
+    REFERENCE_MAX_SIZE,
+    SIZES,
+    measure_bondmap,
+    measure_floor,
+    measure_row,
+)
 from .cuda import CUDA_SIZE, STACK_FRAMES, measure_cuda
 from .pipeline import PIPELINE_SIZE, measure_pipeline_ipc
 from .ramp import RAMP_GROUPS, RAMP_SIZE, measure_ramp
@@ -43,6 +51,8 @@ def work(spec):
                             precision=spec.get("precision", "f32"), repeats=spec["repeats"])
     if config == "cliramp":
         return measure_cliramp(size=spec["size"], groups=spec["groups"])
+    if config == "bondmap":
+        return measure_bondmap(size=spec["size"], repeats=spec["repeats"])
     if config == "calibrate":
         flats = {k: spec[k] for k in ("flat_size", "flat_ints", "flat_groups") if k in spec}
         return calibrate_section(measure_calibrate(spec.get("size", 2048),
@@ -251,6 +261,9 @@ def _measure_sections(info, repeats, progress, notes, cuda_size, stack, pipeline
     progress(f"  a {CLIRAMP_SIZE}x{CLIRAMP_SIZE} x {CLIRAMP_GROUPS} ramp FITS through the CLI")
     found["cliramp"] = _launch({"config": "cliramp", "size": CLIRAMP_SIZE,
                                 "groups": CLIRAMP_GROUPS}, "The CLI ramp row", notes)
+    progress("  a bond map against the uniform law, per iteration, 2048x2048")
+    found["bondmap"] = _launch({"config": "bondmap", "size": 2048, "repeats": 7},
+                               "The bond-map row", notes)
     progress("  start-up: ipc-taichi --help and a 64x64 decouple, fresh processes")
     try:
         found["startup"] = measure_startup(repeats)

@@ -122,7 +122,8 @@ def render_markdown(results):
     lines += ["", "Notes:", ""] + [f"- {n}" for n in results["notes"]]
     lines += ["", _floor_text(results), ""]
     for section in (render_pipeline(results.get("pipeline")), render_section(results.get("ramp")),
-                    render_section(results.get("calibrate")), render_cuda(results.get("cuda")),
+                    render_section(results.get("calibrate")),
+                    render_section(results.get("bondmap")), render_cuda(results.get("cuda")),
                     render_section(results.get("cliramp")), render_section(results.get("startup"))):
         if section:
             lines += [section]

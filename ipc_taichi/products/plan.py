@@ -427,7 +427,7 @@ def edge_of(model, asked, layout):
         edge, reason = model.edge, "default (plain image)"
     if edge == model.edge:
         return model, reason
-    return CouplingModel(model.law, model.geometry, edge), reason
+    return CouplingModel(model.law, model.geometry, edge, model.bonds), reason
 
 
 def _units(facts, mission, options):
@@ -541,6 +541,11 @@ def plan_array(facts, mission, model, options, zeroth=None):
                                         time_source=mission.time_source, coadds=coadds,
                                         gain_source=mission.gain_source)
     inner, reason = edge_of(model, options.edge, layout)
+    science = tuple(s.stop - s.start for s in layout.region)
+    if model.bonds is not None and tuple(model.bonds.shape) != science:
+        raise IPCInputError(f"{facts.label}: the model's bond map is {model.bonds.shape[0]}x"
+                            f"{model.bonds.shape[1]} (ny x nx), the science region "
+                            f"{science[0]}x{science[1]}")
     pedestal = _pedestal(facts, options, gain, zeroth, layout)
     if pedestal is not None and options.tile:
         raise IPCInputError(f"{facts.label}: --tile cannot add the pedestal (zeroth read); run "
