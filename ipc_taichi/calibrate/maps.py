@@ -48,9 +48,7 @@ from scipy import ndimage
 
 from .. import decouple
 from ..bondmap import BondMap
-from ..errors import IPCInputError
 from ..model import CouplingModel
-from ..reference import decouple_reference
 from . import hotpixels
 from .transfer import mosaic
 
@@ -369,15 +367,8 @@ def to_bonds(coarse, s, geometry, shape):
 
 
 def decouple_frame(frame, model):
-    """Decouple one 2-D frame with ``model``: ``ipc_taichi.decouple``, or the
-    NumPy reference while the Taichi kernels do not take a bond map."""
-    if model.bonds is not None:
-        try:
-            return np.asarray(decouple(frame, model=model), float)
-        except IPCInputError as exc:
-            if "bond map" not in str(exc):
-                raise
-            return decouple_reference(frame, model=model)[0]
+    """Decouple one 2-D frame with ``model`` (with or without a map):
+    :func:`ipc_taichi.decouple`."""
     return np.asarray(decouple(frame, model=model), float)
 
 
