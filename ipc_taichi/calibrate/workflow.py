@@ -24,6 +24,12 @@ The steps are those of a detector laboratory:
    forward simulators may use and ``decouple`` never does; the report
    (:mod:`.report`) says what was measured, assumed and not measured.
 
+6. **The map** (:mod:`.maps`): the coupling of each neighbour pair across
+   the detector, per super-pixel from flats and hot pixels, written only
+   when held-out data prefer it to the uniform law; two assumptions
+   (read-noise correlation between neighbours, hot pixels without
+   brighter-fatter) are tested (:mod:`.assumptions`).
+
 A reference file (:mod:`.reffiles`) alone gives a constant law; with
 measurements it is reported beside them for comparison.
 """
