@@ -239,11 +239,13 @@ def test_calibrate_cli_report_and_figures(cpu, cli, tmp_path, small_dark):
     report = json.loads(rep.read_text())
     assert report["fit"]["chosen"] in report["fit"]["forms"]
     assert all(abs(p["pull"]) < 10 for p in report["fit"]["points"])
-    # darks only: the law, its map, the held-out stamps and one figure per direction
-    # (no brighter-fatter kernel, no flat-ramp covariances: not measured, not drawn)
+    # darks only: the law, its map, the held-out stamps, the IPC map across the detector
+    # (measured and tested, whether written or not) and one figure per direction (no
+    # brighter-fatter kernel, no flat-ramp covariances: not measured, not drawn)
     assert sorted(p.name for p in figs.iterdir()) == sorted(
         [f"calibrate_{d}.png" for d in hotpixels.DIRECTIONS]
-        + ["calibrate_law.png", "calibrate_map.png", "calibrate_stamp.png"])
+        + ["calibrate_law.png", "calibrate_map.png", "calibrate_stamp.png",
+           "calibrate_bond_map.png"])
     # the model file decouples through the command line's --model
     frame = tmp_path / "frame.fits"
     write_sci(frame, np.full((32, 32), 1000.0))

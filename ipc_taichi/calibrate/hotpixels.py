@@ -49,7 +49,8 @@ from scipy import ndimage
 
 from ..errors import IPCInputError
 
-__all__ = ["DIRECTIONS", "find_hot_pixels", "measure_events", "summarise_events",
+__all__ = ["DIRECTIONS", "BIN_FLOOR_READ_NOISE", "SCORE_FLOOR_READ_NOISE", "floors", "frame_noise",
+           "find_hot_pixels", "measure_events", "summarise_events",
            "select_events", "fold_of", "nn_fraction", "per_pixel_mean",
            "read_noise_from_darks"]
 
@@ -61,6 +62,46 @@ DIRECTIONS = {
     "second_y": ((2, 0), (-2, 0)),
 }
 """Direction name -> the offsets ``(dy, dx)`` it averages."""
+
+BIN_FLOOR_READ_NOISE = 16.0
+"""The hot pixels' signal bins start at this many times the noise of a
+neighbour (the frame's pixel-to-pixel noise, :func:`frame_noise`): 200 e- at
+12.5 e-, where one neighbour's noise is 6 % of the charge."""
+SCORE_FLOOR_READ_NOISE = 80.0
+"""The held-out check scores hot pixels from this many times the neighbours'
+noise: 1000 e- at 12.5 e-, where the four neighbours' mean noise is ~0.6 % of
+the charge (the size of the coupling itself)."""
+DEFAULT_FLOORS = (200.0, 1000.0)
+"""The floors [e-] when the noise is not known."""
+
+
+def frame_noise(frame, mask=None):
+    """The pixel-to-pixel noise of a dark frame [e-]: the robust standard
+    deviation of the frame about its median (read noise, dark-current and
+    fixed-pattern scatter: what a hot pixel's neighbours carry); None when
+    it cannot be measured."""
+    f = np.asarray(frame, dtype=np.float64)
+    bad = ~np.isfinite(f) if mask is None else (np.asarray(mask, bool) | ~np.isfinite(f))
+    v = f[~bad]
+    if v.size < 100:
+        return None
+    sigma = _robust_sigma(v[::max(1, v.size // 262144)] - np.median(v))
+    return sigma if np.isfinite(sigma) and sigma > 0 else None
+
+
+def floors(noise):
+    """The signal floors [e-] of the hot pixels' bins and of the held-out check,
+    in proportion to the neighbours' noise measured on the darks
+    (:func:`frame_noise`; the same pixels pass at any gain given), or
+    :data:`DEFAULT_FLOORS` when it is unknown: ``{"bins", "score", "source"}``."""
+    if noise is not None and np.isfinite(noise) and noise > 0:
+        n = float(noise)
+        return {"bins": BIN_FLOOR_READ_NOISE * n, "score": SCORE_FLOOR_READ_NOISE * n,
+                "source": f"{BIN_FLOOR_READ_NOISE:g} and {SCORE_FLOOR_READ_NOISE:g} x the "
+                          f"darks' pixel-to-pixel noise ({n:.4g} e-)"}
+    return {"bins": DEFAULT_FLOORS[0], "score": DEFAULT_FLOORS[1],
+            "source": "the darks' noise is unknown: fixed floors"}
+
 
 _BOX = [(dy, dx) for dy in range(-2, 3) for dx in range(-2, 3)]
 _RING = [(dy, dx) for dy in range(-3, 4) for dx in range(-3, 4) if max(abs(dy), abs(dx)) == 3]

@@ -15,7 +15,7 @@ from ..refformats import read_model
 from ..refkernels import invert_kernels, law_from_forward_kernel
 
 __all__ = ["read_reference", "read_reference_model", "invert_kernel",
-           "law_from_forward_kernel"]
+           "law_from_forward_kernel", "pedigree_of"]
 
 invert_kernel = invert_kernels
 """The convolution inverse of a kernel (:func:`ipc_taichi.refkernels.invert_kernels`)."""
@@ -39,3 +39,13 @@ def read_reference(path):
     """
     model, info = read_model(path)
     return model.law, model.geometry, info
+
+
+def pedigree_of(path):
+    """The PEDIGREE of a FITS reference file (None when absent or not FITS)."""
+    try:
+        from astropy.io import fits
+
+        return str(fits.getval(path, "PEDIGREE")).strip() or None
+    except Exception:  # ASDF, or no such keyword: the reader's own info says the rest
+        return None

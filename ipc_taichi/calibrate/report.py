@@ -18,7 +18,8 @@ import numpy as np
 from ..fitsio import write_json
 from .hotpixels import DIRECTIONS
 
-__all__ = ["write_report", "write_figures", "json_ready", "summary_lines"]
+__all__ = ["write_report", "write_figures", "json_ready", "summary_lines", "map_lines",
+           "reference_lines"]
 
 
 def json_ready(value):
@@ -95,6 +96,10 @@ def summary_lines(document, model):
             parts.append(f"{name} {_pm(r['residual'], r['error'], 100, '+.3f', ' %')}")
         lines.append(f"held-out hot pixels ({t['chosen']['n_pixels']}), neighbour residual: "
                      + "; ".join(parts))
+    lines += reference_lines(document.get("reference"), model, bool(document.get("fit", {})
+                                                                   .get("points")))
+    lines += map_lines(document.get("bond_map"))
+    lines += [f"assumption tested: {a['note']}" for a in document.get("assumptions") or []]
     for line in document.get("not_measured", []):
         lines.append(f"not measured: {line}")
     for line in (document.get("fit") or {}).get("assumed") or []:
@@ -128,6 +133,48 @@ def _alpha_lines(fit):
         lines.append("geometry weights (x and y average 1): " + ", ".join(
             f"{axis} {_pm(w, errors.get(axis), 1.0, '.3f')}" for axis, w in weights.items()))
     return lines
+
+
+def reference_lines(ref, model, measured):
+    """The console's comparison of a reference file with what was measured
+    (a DUMMY reference named as such)."""
+    if not ref:
+        return []
+    pedigree = str(ref.get("pedigree") or "").upper()
+    name = (f"DUMMY reference (PEDIGREE = {ref['pedigree']!r}: a placeholder, not a "
+            "measurement)" if pedigree.startswith("DUMMY") else "reference")
+    x = ref.get("coupling_x")
+    if x is None:
+        return [f"{name}: {ref['file']}: {ref.get('law')}"]
+    if not measured:
+        return [f"{name}: {ref['file']}: nearest coupling (x) {100 * x:.3f} %; nothing "
+                "measured: the model is the reference's"]
+    m = float(model.law.alpha(1e4, 0.0) * model.geometry.weight(0, 1))
+    return [f"{name}: {ref['file']}: nearest coupling (x) {100 * x:.3f} % against "
+            f"{100 * m:.3f} % measured at (10 ke-, 0) ({100 * (m / x - 1):+.1f} %)"]
+
+
+def map_lines(section):
+    """The console's lines on the IPC map across the detector (:mod:`.maps`)."""
+    if not section:
+        return []
+    if section.get("x") is None:
+        return [f"IPC map: not measured: {section.get('reason')}"]
+    t = section.get("test") or {}
+
+    def z(part, what):
+        r = t.get(part)
+        return f"{what} {r['z']:+.1f} SE (n = {r['n']})" if r else f"{what}: not tested"
+
+    x = np.array(section["x"], float)
+    err = np.array(section["x_error"], float)
+    state = "WRITTEN" if section.get("written") else "not written (the model is uniform)"
+    flat = t.get("flat_superpixel")
+    return [f"IPC map: {state}: {section['reason']}",
+            f"IPC map: {section['superpixel'][0]} px super-pixels, x bonds {x.min():.3f}.."
+            f"{x.max():.3f} of the law (median error {np.nanmedian(err):.3f}); held-out: "
+            + z("hot", "hot pixels") + "; "
+            + z("flat", f"flats ({flat} px)" if flat else "flats")]
 
 
 def write_report(document, path, overwrite=False):
@@ -201,6 +248,29 @@ def _stamp_figure(fig, axes, transfer):
     fig.colorbar(im, ax=list(axes), label="fraction of the hot pixel's charge [%]")
 
 
+def _bond_map_figure(fig, axes, section):
+    """The map of the x and y bonds (relative to the law), their errors, and the
+    held-out test in the title."""
+    lim = max(float(np.nanmax(np.abs(np.array(section[n], float) - 1))) for n in ("x", "y"))
+    lim = max(lim, 0.01)
+    for row, name in enumerate(("x", "y")):
+        value = np.array(section[name], float)
+        error = np.array(section[f"{name}_error"], float)
+        for col, (data, label, cmap) in enumerate(((value, "map", "coolwarm"),
+                                                   (error, "error", "viridis"))):
+            ax = axes[row, col]
+            im = ax.imshow(data, origin="lower", cmap=cmap,
+                           **({"vmin": 1 - lim, "vmax": 1 + lim} if col == 0 else {}))
+            fig.colorbar(im, ax=ax, shrink=0.8)
+            ax.set_title(f"{name} bonds: {label} (super-pixels of "
+                         f"{section['superpixel'][0]} px)", fontsize=9)
+    t = section.get("test") or {}
+    parts = [f"{k} {t[k]['z']:+.1f} SE" for k in ("hot", "flat") if t.get(k)]
+    fig.suptitle(f"IPC map {'written' if section.get('written') else 'NOT written'}; "
+                 f"held-out preference for the map: {', '.join(parts) or 'not tested'}",
+                 fontsize=10)
+
+
 def _kernel_figure(fig, ax, bf):
     k = 1e7 * np.array(bf["kernel"], float)
     e = 1e7 * np.array(bf["kernel_error"], float) if bf.get("kernel_error") else None
@@ -247,8 +317,9 @@ def write_figures(folder, document, law, geometry):
 
     ``calibrate_law.png`` (the nearest-neighbour law with its band against
     the points at (S, 0) and (S, S)), ``calibrate_map.png`` (alpha(S, N)),
-    ``calibrate_stamp.png`` (the mean hot-pixel stamp before and after
-    decoupling with the held-out law), ``calibrate_bf_kernel.png`` (the
+    ``calibrate_bond_map.png`` (the IPC map across the detector, its error
+    and the held-out test), ``calibrate_stamp.png`` (the mean hot-pixel
+    stamp before and after decoupling with the held-out law), ``calibrate_bf_kernel.png`` (the
     brighter-fatter kernel), ``calibrate_covariance.png`` (flat-ramp
     covariances against signal with each model's prediction), and one
     ``calibrate_<direction>.png`` per direction (measured against ``w
@@ -286,6 +357,11 @@ def write_figures(folder, document, law, geometry):
         fig, axes = plt.subplots(1, 2, figsize=(9, 4), layout="constrained")
         _stamp_figure(fig, axes, transfer)
         save(fig, "calibrate_stamp.png")
+    section = document.get("bond_map") or {}
+    if section.get("x") is not None:
+        fig, axes = plt.subplots(2, 2, figsize=(9, 8), layout="constrained")
+        _bond_map_figure(fig, axes, section)
+        save(fig, "calibrate_bond_map.png")
     bf = document.get("brighter_fatter") or {}
     if bf.get("measured") and bf.get("kernel") is not None:
         fig, ax = plt.subplots(figsize=(5.5, 4.5))

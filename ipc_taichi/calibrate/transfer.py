@@ -24,13 +24,13 @@ from .. import decouple
 from ..model import CouplingModel
 from . import hotpixels, lawfit
 
-__all__ = ["HALF", "held_out_residuals"]
+__all__ = ["HALF", "mosaic", "held_out_residuals"]
 
 HALF = 9
 """Half-width of the stamp around each hot pixel (pixels)."""
 
 
-def _mosaic(groups, positions):
+def mosaic(groups, positions):
     """Stamps of every group around ``positions`` laid side by side:
     ``(stack (ngroups, H, W), centres (k, 2))``."""
     g, ny, nx = groups.shape
@@ -54,7 +54,7 @@ def _residual(mosaics, model, min_signal):
     """Mean neighbour fraction after decoupling with ``model`` (None: as
     measured) at the hot pixels of ``mosaics`` (per integration with hot
     pixels: ``(stack, centres, groups, positions)``, the stamps cut by
-    :func:`_mosaic` once for every model): ``{"residual", "error", "n_pixels"}``."""
+    :func:`mosaic` once for every model): ``{"residual", "error", "n_pixels"}``."""
     values, pixels, boxes = [], [], []
     for stack, centres, groups, positions in mosaics:
         if model is not None:
@@ -78,7 +78,8 @@ def _residual(mosaics, model, min_signal):
             "stamp": stamp.tolist()}
 
 
-def held_out_residuals(integrations, events, bins, flat_rows, chosen, min_signal=1000.0):
+def held_out_residuals(integrations, events, bins, flat_rows, chosen, min_signal=1000.0,
+                       bin_floor=200.0):
     """Decouple each half of the hot pixels with laws fitted on the other half.
 
     Parameters
@@ -97,6 +98,8 @@ def held_out_residuals(integrations, events, bins, flat_rows, chosen, min_signal
         The law form chosen on all the data (:func:`.lawfit.choose_law`).
     min_signal : float
         Measurements below this charge [e-] are not scored.
+    bin_floor : float
+        The bins' floor [e-] (:func:`.hotpixels.floors`).
 
     Returns
     -------
@@ -110,7 +113,7 @@ def held_out_residuals(integrations, events, bins, flat_rows, chosen, min_signal
     scored = {"chosen": [], "constant": [], "uncorrected": []}
     for half in (0, 1):
         train = hotpixels.summarise_events(hotpixels.select_events(events, half_of != half),
-                                           bins=bins, min_count=3)
+                                           bins=bins, min_count=3, min_signal=bin_floor)
         try:
             fitted = lawfit.fit_forms(train, flat_rows)
         except ValueError:  # this half measures no coupling: no check
@@ -123,7 +126,7 @@ def held_out_residuals(integrations, events, bins, flat_rows, chosen, min_signal
             ids = positions[:, 0] * groups.shape[-1] + positions[:, 1]
             kept = positions[np.isin(ids, list(held))]
             if len(kept):
-                mine.append((*_mosaic(groups, kept), groups, kept))
+                mine.append((*mosaic(groups, kept), groups, kept))
         for key, name in (("chosen", chosen), ("constant", "constant")):
             geometry, law = lawfit.model_of(fitted, name)
             scored[key].append(_residual(mine, CouplingModel.resolve(law, geometry, "zero"),

@@ -24,6 +24,12 @@ The steps are those of a detector laboratory:
    forward simulators may use and ``decouple`` never does; the report
    (:mod:`.report`) says what was measured, assumed and not measured.
 
+6. **The map** (:mod:`.maps`): the coupling of each neighbour pair across
+   the detector, per super-pixel from flats and hot pixels, written only
+   when held-out data prefer it to the uniform law; two assumptions
+   (read-noise correlation between neighbours, hot pixels without
+   brighter-fatter) are tested (:mod:`.assumptions`).
+
 A reference file (:mod:`.reffiles`) alone gives its model (a constant law, and
 the detector's map for a per-pixel file); with measurements it is reported
 beside them for comparison.
@@ -39,8 +45,8 @@ from .. import __version__
 from ..errors import IPCInputError
 from ..fitsio import check_output_path
 from ..model import CouplingModel
+from . import assumptions, hotpixels, lawfit, maps, ramps, reffiles, report, transfer, verdicts
 from . import flats as flatmod
-from . import hotpixels, lawfit, ramps, reffiles, report, transfer
 from .inputs import DEFAULT_DQ_BITS, read_frames
 
 __all__ = ["calibrate"]
@@ -62,9 +68,10 @@ class _HotPixels:
     from (for the transfer check), the signal bins of the full data."""
 
     def __init__(self, darks, threshold, not_measured):
-        events, self.integrations, read_noise, self.found = [], [], [], 0
+        events, self.integrations, read_noise, self.found, noise = [], [], [], 0, []
         for f in darks:
             for i, integ in enumerate(f.data):
+                noise.append(hotpixels.frame_noise(integ[-1], f.mask[i, -1]))
                 positions = hotpixels.find_hot_pixels(integ[-1], f.mask[i, -1],
                                                       threshold=threshold)
                 self.found += len(positions)
@@ -75,9 +82,12 @@ class _HotPixels:
                 if rn is not None:
                     read_noise.append(rn)
         self.read_noise = float(np.median(read_noise)) if read_noise else None
+        noise = [n for n in noise if n is not None]
+        self.floors = hotpixels.floors(float(np.median(noise)) if noise else None)
         self.events = ({k: np.concatenate([e[k] for e in events]) for k in events[0]}
                        if events else None)
-        self.rows = hotpixels.summarise_events(self.events) if self.events else []
+        self.rows = (hotpixels.summarise_events(self.events, min_signal=self.floors["bins"])
+                     if self.events else [])
         self.bins = (np.array([r["signal_range"][0] for r in self.rows]
                               + [self.rows[-1]["signal_range"][1]]) if self.rows else None)
         if darks and not self.rows:
@@ -100,7 +110,8 @@ class _HotPixels:
             return self.rows
         keep = np.isin(hotpixels.fold_of(self.events["pixel"], k), list(folds))
         rows = hotpixels.summarise_events(hotpixels.select_events(self.events, keep),
-                                          bins=self.bins, min_count=3)
+                                          bins=self.bins, min_count=3,
+                                          min_signal=self.floors["bins"])
         full = {r["signal_range"][0]: r for r in self.rows}
         out = []
         for r in rows:
@@ -360,7 +371,7 @@ def _gain_used(files, gain):
 def calibrate(darks=(), flats=(), reference=None, output=None, *, report_path=None,
               figures=None, gain=None, bunit=None, hdu=None, read_noise=None,
               dq_bits=DEFAULT_DQ_BITS, refpix=None, threshold=30.0, folds=10,
-              collection_steps=None, overwrite=False):
+              collection_steps=None, overwrite=False, measure_map=True):
     """Measure a detector's coupling and write its model file.
 
     Parameters
@@ -402,6 +413,9 @@ def calibrate(darks=(), flats=(), reference=None, output=None, *, report_path=No
         continuous collection, which is the default): see
         :mod:`.ramps`.
     overwrite : bool
+    measure_map : bool
+        Measure the IPC map across the detector (:mod:`.maps`); it is written
+        only when held-out data prefer it to the uniform law.
 
     Returns
     -------
@@ -433,7 +447,8 @@ def calibrate(darks=(), flats=(), reference=None, output=None, *, report_path=No
         ref_model, info = reffiles.read_reference_model(reference)
         law_ref, geo_ref = ref_model.law, ref_model.geometry
         ref = {"file": reference, "law": law_ref.describe(), "geometry": geo_ref.describe(),
-               **info}
+               "coupling_x": float(law_ref.alpha(1e4, 0.0) * geo_ref.weight(0, 1)),
+               "pedigree": reffiles.pedigree_of(reference), **info}
 
     k = hot.folds(folds)
 
@@ -456,11 +471,18 @@ def calibrate(darks=(), flats=(), reference=None, output=None, *, report_path=No
             "the reference file's kernels at every signal" if "kept" not in info["kind"]
             else "the model kept in the reference file"]}
     elif hot.integrations:
-        transfer_check = transfer.held_out_residuals(hot.integrations, hot.events, hot.bins,
-                                                     points_for(None)[1], fit["chosen"])
+        transfer_check = transfer.held_out_residuals(
+            hot.integrations, hot.events, hot.bins, points_for(None)[1], fit["chosen"],
+            min_signal=hot.floors["score"], bin_floor=hot.floors["bins"])
+        law, geometry = verdicts.constant_unless_better(fit, transfer_check, points_for, law,
+                                                        geometry)
+    verdicts.say_why_empty(transfer_check, hot, darks, not_measured)
+    bond_map, tested = _map_and_assumptions(dark_frames, flat_frames, hot, flat, law, geometry,
+                                            rn, effects, measure_map)
     model = (ref_model if fit["chosen"] == "reference file"
-             else CouplingModel.resolve(law, geometry, "zero"))
-    nl_ipc = _nonlinear_ipc(fit, effects.pop("flat_ramp_nonlinear_ipc"), transfer_check)
+             else CouplingModel.resolve(law, geometry, "zero",
+                                        bonds=bond_map["bonds"] if bond_map else None))
+    nl_ipc = verdicts.nonlinear_ipc(fit, effects.pop("flat_ramp_nonlinear_ipc"), transfer_check)
     provenance = {"software": f"ipc_taichi {__version__}", "command": "calibrate",
                   "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
                   "darks": [f.label for f in dark_frames], "flats": [f.label for f in flat_frames],
@@ -479,12 +501,14 @@ def calibrate(darks=(), flats=(), reference=None, output=None, *, report_path=No
                            (("dark", dark_frames), ("flat", flat_frames)) for f in files],
                 **effects, "nonlinear_ipc": nl_ipc, "law_choice": fit.get("law_choice"),
                 "transfer": transfer_check, "fit": fit,
-                "hot_pixels": {"found": hot.found, "bins": hot.rows},
+                "hot_pixels": {"found": hot.found, "bins": hot.rows, "floors_e": hot.floors},
                 "flats": {"levels": flat.rows if flat else [],
                           "ramps": [{"files": label, **m} for label, m in flat.measured]
                           if flat else [],
                           "growth_with_signal": flatmod.growth_with_signal(
                               flat.frame_rows) if flat else {}},
+                "bond_map": ({k: v for k, v in bond_map.items() if k != "bonds"}
+                             if bond_map else None), "assumptions": tested,
                 "reference": ref, "not_measured": not_measured, "notes": notes}
     if output is not None:
         model.save(output, provenance=provenance, fit=report.json_ready(summary),
@@ -512,54 +536,23 @@ def _check_figures_folder(folder):
                             "writable folder)")
 
 
-def _transfer_supports(transfer_check):
-    """Whether the held-out transfer check (:mod:`.transfer`) finds the chosen
-    law correcting held-out hot pixels better than the best constant (their
-    residuals apart by more than twice their combined error); None when
-    there is no check."""
-    if not transfer_check:
-        return None
-    chosen, constant = transfer_check.get("chosen") or {}, transfer_check.get("constant") or {}
-    if chosen.get("residual") is None or constant.get("residual") is None:
-        return None
-    error = float(np.hypot(chosen.get("error") or 0.0, constant.get("error") or 0.0))
-    return abs(constant["residual"]) - abs(chosen["residual"]) > 2.0 * error
 
 
-def _nonlinear_ipc(fit, ramp_evidence, transfer_check=None):
-    """Non-linear IPC is claimed where held-out data choose a law richer than
-    a constant (brighter-fatter already removed from flat ramps) and the
-    held-out transfer check, where there is one, does not find the best
-    constant correcting as well; or where the flat ramps' joint fit finds the
-    IPC terms changing with signal beside brighter-fatter; the second without
-    the first is said: the law written then does not follow it."""
-    choice = fit.get("law_choice") or {}
-    chosen = fit.get("chosen")
-    by_law = bool(choice) and chosen != "constant"
-    confirms = _transfer_supports(transfer_check) if by_law else None
-    if confirms is False:
-        by_law = False
-        choice = dict(choice, unconfirmed=(
-            f"the law choice prefers {chosen}, but on held-out hot pixels the best constant "
-            "corrects as well (transfer check): not confirmed"))
-    by_ramps = bool(ramp_evidence and ramp_evidence.get("detected"))
-    margin = (choice.get("margin_against_constant") or {}).get(chosen) if by_law else None
-    if not choice and not by_ramps:
-        note = "not tested (no measured points)"
-    elif by_law:
-        note = (f"the law {chosen} predicts held-out data better than a constant by "
-                f"{margin:.1f} standard errors")
-    elif by_ramps:
-        note = (f"the flat ramps' joint fit finds it beside brighter-fatter "
-                f"({ramp_evidence['significance']:+.1f} sigma, "
-                f"{ramp_evidence['slope_per_10ke']:+.3g} per 10 ke- in x + y), but the "
-                "per-level points are too noisy for the law to follow it: the law written "
-                "is a constant (more pixels or integrations would pin its shape)")
-    else:
-        note = choice.get("unconfirmed") or \
-            "a constant predicts held-out data as well as any signal-dependent law"
-    return {"detected": by_law or by_ramps, "significance": margin, "law_follows": by_law,
-            "note": note, "flat_ramps": ramp_evidence, "transfer_confirms": confirms}
+def _map_and_assumptions(dark_frames, flat_frames, hot, flat, law, geometry, rn, effects,
+                         measure_map):
+    """The IPC map (:mod:`.maps`, None when not asked or nothing can measure
+    it) and the two assumptions tested (:mod:`.assumptions`)."""
+    bond_map = None
+    if measure_map and (hot.events is not None or flat is not None):
+        bond_map = maps.measure_map(dark_frames, flat_frames, hot, law, geometry, rn)
+    levels = [r["level"] for r in flat.rows if r.get("terms")] if flat else []
+    tested = [assumptions.read_noise_correlation(
+                  bond_map.pop("read_cov", None) if bond_map else None, levels,
+                  float(law.alpha(1e4, 1e4))),
+              assumptions.hot_pixel_brighter_fatter(hot.slope(), effects["brighter_fatter"])]
+    return bond_map, tested
+
+
 
 
 def _sections(effects, fit):
