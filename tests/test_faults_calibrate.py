@@ -116,7 +116,7 @@ def test_nonlinear_ipc_is_detected_only_where_the_transfer_check_supports_it(
 
     _richer_choice(monkeypatch)
 
-    def transfer(integrations, events, bins, flat_rows, chosen, min_signal=1000.0):
+    def transfer(integrations, events, bins, flat_rows, chosen, **floors):
         one = {"error": 0.0002, "n_pixels": 8, "stamp": None}
         return {"form": chosen, "chosen": dict(one, residual=0.0001),
                 "constant": dict(one, residual=constant_residual),

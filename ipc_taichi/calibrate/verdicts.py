@@ -94,7 +94,10 @@ def nonlinear_ipc(fit, ramp_evidence, transfer_check=None):
                 "per-level points are too noisy for the law to follow it: the law written "
                 "is a constant (more pixels or integrations would pin its shape)")
     else:
-        note = choice.get("unconfirmed") or \
-            "a constant predicts held-out data as well as any signal-dependent law"
+        note = choice.get("unconfirmed") or (
+            f"the law choice preferred {choice['demoted']}, but on held-out hot pixels the "
+            "best constant corrects as well (transfer check): not confirmed; the constant is "
+            "written" if choice.get("demoted") else
+            "a constant predicts held-out data as well as any signal-dependent law")
     return {"detected": by_law or by_ramps, "significance": margin, "law_follows": by_law,
             "note": note, "flat_ramps": ramp_evidence, "transfer_confirms": confirms}
