@@ -56,11 +56,11 @@ except ImportError as exc:  # the optional extra is not installed
 
 from .. import __version__, iteration, runtime
 from ..errors import IPCInputError
-from ..model import CouplingModel
 from . import conventions as cv
 from . import missions
 from .options import ProductOptions
 from .plan import NOISE_ARRAYS, ArrayFacts, noise_of, plan_product
+from .stepspec import SPEC, coupling_of
 
 __all__ = ["IPCTaichiStep", "Detector1TaichiPipeline", "correct_ramp", "correct_model",
            "plan_model"]
@@ -266,21 +266,8 @@ class IPCTaichiStep(Step):
 
     class_alias = "ipc_taichi"
 
-    spec = f"""
-        model = string(default=None)  # coupling-model file (JSON, from ipc-taichi calibrate)
-        law = string(default=None)  # coupling law alpha(S,N), in electrons (or model=)
-        geometry = string(default=None)  # neighbour weights, e.g. horizontal=1,vertical=0.9
-        edge = option('zero', 'isolated', default=None)  # asked for; default: from the frame
-        gain = float(default=None)  # e-/DN (required)
+    spec = SPEC + """
         superbias = string(default=None)  # superbias file, when the ramp holds the bias
-        dq_bits = string(default='DO_NOT_USE,SATURATED')  # flags of pixels left out
-        saturation = float(default=None)  # DN at or above which a pixel is left out
-        refpix = integer(default=None)  # reference border; default: REFERENCE_PIXEL flags
-        max_iter = integer(default={iteration.MAX_ITER})  # at most this many Jacobi iterations
-        tol = float(default={iteration.TOL!r})  # stop when max|dS| <= tol * max|S|
-        arch = string(default=None)  # Taichi arch: auto, cpu, cuda
-        precision = string(default=None)  # f64 or f32
-        noise = option('propagate', 'keep', default='propagate')  # err, var_*
     """
 
     @classmethod
@@ -290,17 +277,8 @@ class IPCTaichiStep(Step):
         return cls._empty_config()
 
     def coupling(self):
-        """The coupling model of the parameters: ``model`` (a file) or ``law``
-        (with ``geometry``, ``edge``); the paper's law is never a silent default."""
-        if self.model:
-            if self.law or self.geometry or self.edge:
-                raise ValueError("ipc_taichi: give model= or law=/geometry=/edge=, not both "
-                                 "(the model file holds its law, geometry and edge)")
-            return CouplingModel.load(self.model)
-        if not self.law:
-            raise ValueError("ipc_taichi: a JWST ramp needs its detector's coupling: give "
-                             "model=FILE (from 'ipc-taichi calibrate') or law=...")
-        return CouplingModel.resolve(self.law, self.geometry, self.edge)
+        """The coupling model of the parameters (:func:`.stepspec.coupling_of`)."""
+        return coupling_of(self, "a JWST ramp")
 
     def options(self):
         """The :class:`~ipc_taichi.products.options.ProductOptions` of the

@@ -37,11 +37,11 @@ except ImportError as exc:  # the optional extras are not installed
     raise ImportError("the Roman step needs roman_datamodels and stpipe: "
                       "pip install 'ipc_taichi[roman,jwst]'") from exc
 
-from .. import __version__, iteration
-from ..model import CouplingModel
+from .. import __version__
 from .hooks import configured_subclass
 from .options import ProductOptions
 from .roman import process_asdf
+from .stepspec import SPEC, coupling_of
 
 __all__ = ["RomanIPCTaichiStep", "roman_configured_step"]
 
@@ -53,20 +53,7 @@ class RomanIPCTaichiStep(Step):
 
     class_alias = "roman_ipc_taichi"
 
-    spec = f"""
-        model = string(default=None)  # coupling-model file (JSON, from ipc-taichi calibrate)
-        law = string(default=None)  # coupling law alpha(S,N), in electrons (or model=)
-        geometry = string(default=None)  # neighbour weights, e.g. horizontal=1,vertical=0.9
-        edge = option('zero', 'isolated', default=None)  # asked for; default: from the frame
-        gain = float(default=None)  # e-/DN (required)
-        dq_bits = string(default='DO_NOT_USE,SATURATED')  # flags of pixels left out
-        saturation = float(default=None)  # DN at or above which a pixel is left out
-        refpix = integer(default=None)  # reference border; default: REFERENCE_PIXEL flags
-        max_iter = integer(default={iteration.MAX_ITER})  # at most this many Jacobi iterations
-        tol = float(default={iteration.TOL!r})  # stop when max|dS| <= tol * max|S|
-        arch = string(default=None)  # Taichi arch: auto, cpu, cuda
-        precision = string(default=None)  # f64 or f32
-        noise = option('propagate', 'keep', default='propagate')  # err, var_*
+    spec = SPEC + """
         output_ext = string(default='.asdf')  # Roman products are ASDF
     """
 
@@ -80,17 +67,8 @@ class RomanIPCTaichiStep(Step):
         return cls._empty_config()
 
     def coupling(self):
-        """``model`` (a file) or ``law`` (with ``geometry``, ``edge``); never the
-        paper's law by default."""
-        if self.model:
-            if self.law or self.geometry or self.edge:
-                raise ValueError("roman_ipc_taichi: give model= or law=/geometry=/edge=, not "
-                                 "both (the model file holds its law, geometry and edge)")
-            return CouplingModel.load(self.model)
-        if not self.law:
-            raise ValueError("roman_ipc_taichi: a Roman ramp needs its detector's coupling: "
-                             "give model=FILE (from 'ipc-taichi calibrate') or law=...")
-        return CouplingModel.resolve(self.law, self.geometry, self.edge)
+        """The coupling model of the parameters (:func:`.stepspec.coupling_of`)."""
+        return coupling_of(self, "a Roman ramp")
 
     def options(self):
         """The :class:`~ipc_taichi.products.options.ProductOptions` of the
