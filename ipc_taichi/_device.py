@@ -6,9 +6,13 @@ array they were given, on the device it was on:
 ``numpy``
     NumPy arrays and anything :func:`numpy.asarray` reads (lists, memmaps).
     On CUDA the frame is copied to the GPU once and the result copied back
-    once, both through the CUDA driver (:class:`CudaDriver`), from host
-    memory that is page-locked for the duration of the call
-    (:func:`pinned_for_call`) so that the copies run at DMA speed.
+    once, both through the CUDA driver (:class:`CudaDriver`): memory the
+    caller keeps page-locked (:func:`pinned_empty`, a pinned tensor's) is
+    copied directly at DMA speed; pageable memory goes through a page-locked
+    staging frame that the workspace keeps, in chunks, by a few threads, so
+    that the host copies and the DMA overlap (:mod:`ipc_taichi._copies`; locking the
+    caller's memory per call costs more than it saves, see
+    :func:`copy_policy`).
 ``torch``
     PyTorch tensors. Taichi takes a tensor as a kernel argument without a copy
     (on the CPU and on CUDA), so the result is computed into a new tensor on the
@@ -37,14 +41,17 @@ from .gpus import CUDA_DRIVER
 __all__ = ["kind_of", "to_torch", "from_torch", "torch_dtype", "check_torch_device",
            "ndarray_pointer", "CudaDriver", "cuda_driver", "pinned_for_call", "pinned_empty",
            "PIN_MIN_BYTES", "DEVICE_KINDS", "torch_stream_order", "shares_memory",
-           "pageable_copies"]
+           "pageable_copies", "copy_policy", "COPY_POLICIES", "register_per_call"]
 
 DEVICE_KINDS = ("torch", "cupy", "jax", "dlpack")
 
 PIN_MIN_BYTES = 4 << 20
-"""Host arrays at least this large are page-locked for the duration of a CUDA
-call; smaller ones are copied from pageable memory (locking costs more than it
-saves on a few MiB)."""
+"""Host arrays at least this large are staged (or, under the ``register``
+policy, page-locked for the duration of a CUDA call); smaller ones are copied
+from pageable memory directly (the driver stages those itself)."""
+
+COPY_POLICIES = ("staged", "register", "pageable")
+"""How large pageable host frames cross the bus on CUDA (:func:`copy_policy`)."""
 
 _INSTALL = {
     "cupy": "CuPy arrays reach Taichi through PyTorch (DLPack): pip install torch "
@@ -220,6 +227,8 @@ CUDA_SUCCESS = 0
 CUDA_ERROR_HOST_MEMORY_ALREADY_REGISTERED = 712
 CUDA_ERROR_HOST_MEMORY_NOT_REGISTERED = 713
 CU_MEMHOSTREGISTER_PORTABLE = 1
+CU_POINTER_ATTRIBUTE_MEMORY_TYPE = 2
+CU_MEMORYTYPE_HOST = 1
 
 
 class CudaDriver:
@@ -296,6 +305,69 @@ class CudaDriver:
                                      ctypes.c_uint64(device_address), ctypes.c_size_t(nbytes)),
                     "cuMemcpyDtoH")
 
+    def upload_async(self, device_address, host_address, nbytes):
+        """Host -> device copy on the legacy default stream (ordered with the
+        kernels); the host memory must be page-locked and left alone until
+        the stream has passed it."""
+        self._check(self._in_context(self.lib.cuMemcpyHtoDAsync_v2,
+                                     ctypes.c_uint64(device_address),
+                                     ctypes.c_void_p(host_address), ctypes.c_size_t(nbytes),
+                                     ctypes.c_void_p(None)), "cuMemcpyHtoDAsync")
+
+    def download_async(self, host_address, device_address, nbytes):
+        """Device -> host copy on the legacy default stream, into page-locked
+        memory; complete once an event recorded after it has passed."""
+        self._check(self._in_context(self.lib.cuMemcpyDtoHAsync_v2, ctypes.c_void_p(host_address),
+                                     ctypes.c_uint64(device_address), ctypes.c_size_t(nbytes),
+                                     ctypes.c_void_p(None)), "cuMemcpyDtoHAsync")
+
+    def memset_async(self, device_address, value, nbytes):
+        """Set ``nbytes`` bytes of device memory to ``value`` (a byte), on the
+        legacy default stream."""
+        self._check(self._in_context(self.lib.cuMemsetD8Async, ctypes.c_uint64(device_address),
+                                     ctypes.c_ubyte(value), ctypes.c_size_t(nbytes),
+                                     ctypes.c_void_p(None)), "cuMemsetD8Async")
+
+    def event(self):
+        """A new CUDA event (without timing)."""
+        ev = ctypes.c_void_p()
+        self._check(self._in_context(self.lib.cuEventCreate, ctypes.byref(ev),
+                                     ctypes.c_uint(2)), "cuEventCreate")
+        return ev
+
+    def record(self, event):
+        """Record ``event`` on the legacy default stream."""
+        self._check(self._in_context(self.lib.cuEventRecord, event, ctypes.c_void_p(None)),
+                    "cuEventRecord")
+
+    def wait(self, event):
+        """Block the host until the stream has passed ``event``."""
+        self._check(self._in_context(self.lib.cuEventSynchronize, event), "cuEventSynchronize")
+
+    def destroy_event(self, event):
+        self._in_context(self.lib.cuEventDestroy_v2, event)
+
+    def host_alloc(self, nbytes):
+        """``nbytes`` of page-locked host memory (its address); see :meth:`free_host`."""
+        ptr = ctypes.c_void_p()
+        self._check(self._in_context(self.lib.cuMemHostAlloc, ctypes.byref(ptr),
+                                     ctypes.c_size_t(nbytes),
+                                     ctypes.c_uint(CU_MEMHOSTREGISTER_PORTABLE)),
+                    "cuMemHostAlloc")
+        return int(ptr.value)
+
+    def free_host(self, address):
+        self._in_context(self.lib.cuMemFreeHost, ctypes.c_void_p(address))
+
+    def is_pinned(self, address):
+        """Whether host ``address`` is page-locked memory the driver knows
+        (registered, or allocated page-locked by any CUDA library)."""
+        kind = ctypes.c_uint()
+        code = self._in_context(self.lib.cuPointerGetAttribute, ctypes.byref(kind),
+                                ctypes.c_int(CU_POINTER_ATTRIBUTE_MEMORY_TYPE),
+                                ctypes.c_uint64(address))
+        return code == CUDA_SUCCESS and kind.value == CU_MEMORYTYPE_HOST
+
     def device_name(self):
         """The name of device 0."""
         self._context()
@@ -324,34 +396,6 @@ def cuda_driver():
         return _driver
 
 
-class HostCopies:
-    """Copies between host NumPy arrays and Taichi ndarrays by address.
-
-    On CUDA through :class:`CudaDriver`; on the CPU (where a Taichi ndarray is
-    host memory) by ``memmove``, which is how the tests run the GPU engine's
-    code path without a GPU.
-    """
-
-    def __init__(self, arch, driver=None):
-        self.arch = arch
-        self.driver = driver if driver is not None or arch != "cuda" else cuda_driver()
-
-    def upload(self, nd, host):
-        host = _contiguous(host)
-        if self.arch == "cuda":
-            self.driver.upload(ndarray_pointer(nd), host.ctypes.data, host.nbytes)
-        else:
-            ctypes.memmove(ndarray_pointer(nd), host.ctypes.data, host.nbytes)
-
-    def download(self, host, nd):
-        if not (host.flags.c_contiguous and host.flags.writeable):
-            raise ValueError("download target must be a writeable C-contiguous array")
-        if self.arch == "cuda":
-            self.driver.download(host.ctypes.data, ndarray_pointer(nd), host.nbytes)
-        else:
-            ctypes.memmove(host.ctypes.data, ndarray_pointer(nd), host.nbytes)
-
-
 def _contiguous(host):
     if not host.flags.c_contiguous:
         raise ValueError("upload source must be C-contiguous")
@@ -370,18 +414,41 @@ def _span(array):
 
 
 _pinning = [True]  # switched off by pageable_copies()
+_policy = ["staged"]
 
 
 @contextlib.contextmanager
-def pageable_copies():
-    """Within this context no host array is page-locked by the engine (its
-    copies run from pageable memory): how the benchmark times what locking
-    saves. Memory already locked (:func:`pinned_empty`) stays locked."""
-    _pinning.append(False)
+def copy_policy(name):
+    """Within this context large pageable host frames cross the bus on CUDA by
+    policy ``name``: ``staged`` (the default: through the workspace's
+    page-locked staging frame, in chunks, by a few threads, see
+    :class:`~ipc_taichi._copies.HostCopies`), ``register`` (the caller's memory page-locked for
+    the duration of the call, :class:`pinned_for_call`: locking costs about
+    as much as the copy) or ``pageable`` (plain driver copies from pageable
+    memory: the driver stages them itself, on one thread). The benchmark
+    times each."""
+    if name not in COPY_POLICIES:
+        raise ValueError(f"copy policy: one of {COPY_POLICIES}, got {name!r}")
+    _policy.append(name)
+    _pinning.append(name != "pageable")
     try:
         yield
     finally:
         _pinning.pop()
+        _policy.pop()
+
+
+def register_per_call():
+    """Whether the engine page-locks the caller's frames for a call
+    (the ``register`` policy of :func:`copy_policy`)."""
+    return _policy[-1] == "register"
+
+
+def pageable_copies():
+    """Within this context no host array is page-locked or staged by the
+    engine (its copies run from pageable memory): how the benchmark times what
+    staging saves. Memory already locked (:func:`pinned_empty`) stays locked."""
+    return copy_policy("pageable")
 
 
 class pinned_for_call:

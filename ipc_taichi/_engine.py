@@ -38,6 +38,7 @@ from ._device import (
     check_torch_device,
     kind_of,
     pinned_for_call,
+    register_per_call,
     shares_memory,
     to_torch,
     torch_dtype,
@@ -45,8 +46,15 @@ from ._device import (
 )
 from ._frames import finite_sum
 from ._inputs import Frames, as_result, as_stack
-from ._kernels import KernelConfig, get_frame_kernels, get_step_kernel, kernel_law_kind
+from ._kernels import (
+    FrameKernels,
+    KernelConfig,
+    get_frame_kernels,
+    get_step_kernel,
+    kernel_law_kind,
+)
 from ._lanes import LANES, aligned_zeros, padded_width
+from ._launch import fast
 from ._warm import WarmStart
 from ._workspace import STRIP_ROWS, Workspace, interior
 from .errors import IPCInputError
@@ -242,7 +250,10 @@ class _Run:
         self.p, self.w, self.table = _model_arrays(model, info, device_buffers)
         self.bonds = (_no_bonds(info, device_buffers) if model.bonds is None
                       else _bond_arrays(model.bonds, info, self.configs[False], device_buffers))
-        self.kernels = get_frame_kernels(info.precision)
+        kernels = get_frame_kernels(info.precision)
+        # the device path launches its kernels by the short route (see _launch)
+        self.kernels = FrameKernels(fast(kernels.load), fast(kernels.store)) \
+            if device_buffers else kernels
         # out= is the input (or overlaps it): each frame is kept before it is
         # overwritten, for its bad pixels' values
         self.aliased = False
@@ -294,8 +305,10 @@ class _Run:
         return True
 
     def pinned(self, out):
-        """Page-lock the NumPy input and output for this call (CUDA only)."""
-        host = self.frames.kind == "numpy" and self.info.arch == "cuda"
+        """Page-lock the NumPy input and output for this call (CUDA, under the
+        ``register`` copy policy only: by default large frames are staged,
+        see :class:`~ipc_taichi._device.HostCopies`)."""
+        host = self.frames.kind == "numpy" and self.info.arch == "cuda" and register_per_call()
         data = self.frames.data if host and _uploadable(self.frames.data, self.ws.dtype) \
             else None
         return pinned_for_call([data, out if host else None], self.info.arch, enabled=host)
@@ -317,9 +330,14 @@ class _Run:
                 bad = None if bad is None else bad.numpy()
             base, any_bad = _load_host(host, bad, io, ws, shift)
             return base, io, any_bad
+        src = None  # where load reads the frame; None: from io itself
         if frames.on_device:
             io = out[k]
-            io.copy_(frames.data[k])
+            data = frames.data[k]
+            if self.aliased or data.dtype != io.dtype or not data.is_contiguous():
+                io.copy_(data)
+            else:  # load copies the input into io itself: one pass over the frame less
+                src = data
             mask = ws.no_mask if bad is None else bad.to(dtype=_torch_u8()).contiguous()
         else:
             io = ws.io
@@ -335,17 +353,32 @@ class _Run:
                 ws.copies.upload(mask, np.ascontiguousarray(bad, dtype=np.uint8))
         ws.clear_flag()
         ws.start = ws.prev
-        self.kernels.load(io, io, 0, mask, 0 if bad is None else 1, ws.prev, ws.ok, ws.reach,
-                          ws.flag)
+        self.kernels.load(io if src is None else src, io, 0 if src is None else 1, mask,
+                          0 if bad is None else 1, ws.prev, ws.ok, ws.reach, ws.flag)
         any_bad = ws.read(ws.flag, 1)[0] != 0
         ws.ok_clean = not any_bad
         return io, io, any_bad
 
     def step(self, masked, src, base, dst, sign):
         """One step; returns ``(max|dst - src|, max|dst|)`` over good pixels."""
+        self._launch(masked, src, base, dst, sign)
+        return self.ws.maxima()
+
+    def launch(self, masked, src, base, dst, sign):
+        """One step, launched; returns a handle whose maxima
+        :meth:`~ipc_taichi._workspace.Workspace.maxima_wait` gives. On CUDA
+        nothing waits for the device: the maxima come back by an asynchronous
+        copy into page-locked memory, so the host can launch the next step
+        while this one runs."""
+        self._launch(masked, src, base, dst, sign)
+        return self.ws.maxima_start()
+
+    def _launch(self, masked, src, base, dst, sign):
         ws = self.ws
         config = self.configs[masked]
         kernel = get_step_kernel(config)
+        if self.device_buffers:
+            kernel = fast(kernel)
         ok, table, ring, bonds = ws.ok, self.table, ws.ring, self.bonds
         if config.layout == "lanes":  # vectors of L pixels; the measured frame padded
             lanes = LANES[config.precision]
@@ -360,7 +393,6 @@ class _Run:
                                                                   ring))
         kernel(src, base, dst, ok, bonds, self.p, self.w, table, float(sign), ws.partials,
                ring, ws.strip, ws.shape[1])
-        return ws.maxima()
 
     def finish(self, k, io, src, out, any_bad):
         """The estimate in padded ``src`` into the result frame ``io`` (= frame
@@ -502,6 +534,12 @@ def run_decouple(frames, model, info, layout, iterate, out=None, warm_start=Fals
 
                 def step(src, dst, masked=any_bad, base=base):
                     return run.step(masked, src, base, dst, -1.0)
+
+                if run.device_buffers:  # steps run ahead of the host (see decoupling)
+                    def launch(src, dst, masked=any_bad, base=base):
+                        return run.launch(masked, src, base, dst, -1.0)
+
+                    step.launch, step.result = launch, run.ws.maxima_wait
 
                 answer = iterate(k, step, run.ws, warmed)
                 if warm is not None and k + 1 < frames.shape[0]:

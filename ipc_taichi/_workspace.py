@@ -7,12 +7,14 @@ padded array.
 import numpy as np
 
 from . import _kernels
-from ._device import HostCopies, pinned_empty
+from ._copies import HostCopies
+from ._device import ndarray_pointer, pinned_empty
 from ._kernels import STRIP_LAYOUTS, partials_count
 from ._lanes import aligned_zeros, padded_width
 from .errors import IPCInputError
 
-__all__ = ["Workspace", "interior", "STRIP_ROWS", "PIXEL_THREADS", "MIN_RUN_ROWS"]
+__all__ = ["Workspace", "interior", "STRIP_ROWS", "PIXEL_THREADS", "MIN_RUN_ROWS",
+           "MAXIMA_SLOTS"]
 
 # rows per task of the CPU sweep: a strip re-evaluates the dy-row pairs above
 # it (1/STRIP_ROWS extra work for nearest neighbours) and 2 cores need a few
@@ -22,6 +24,9 @@ STRIP_ROWS = 32
 # threads resident, twice that hides the tail of the last wave
 PIXEL_THREADS = 1 << 19
 MIN_RUN_ROWS = 8
+# steps whose maxima may be on their way to the host at once (two are: the
+# step the host waits for and the one launched ahead of it)
+MAXIMA_SLOTS = 4
 
 
 def interior(padded, reach, shape):
@@ -96,12 +101,15 @@ class Workspace:
             ring = (1, 1, 1, 1)
         self.ring = self._zeros(ring, self.dtype)
         self.flag = self._zeros((1,), self.dtype)
+        self.flag_bytes = self.dtype.itemsize
         self.no_mask = self._zeros((1, 1), np.uint8)
         self._io = None
         self._mask = None
         self.ok_clean = True  # the interior of ``ok`` is all 1
         self._staging = None
         self.copies = HostCopies(info.arch) if device_buffers else None
+        self._slots = self._events = None  # maxima_start's page-locked slots and events
+        self._slot = 0
 
     def _ok_values(self, dtype):
         """``ok`` for a frame without bad pixels: border 1 (``zero`` edge) or 0
@@ -169,17 +177,54 @@ class Workspace:
         return [float(v) for v in host]
 
     def clear_flag(self):
-        if self.device_buffers:
+        if self.device_buffers and self.copies.arch == "cuda":
+            # ordered on the stream like a kernel: no wait for the work before it
+            self.copies.driver.memset_async(ndarray_pointer(self.flag), 0, self.flag_bytes)
+        elif self.device_buffers:
             self.copies.upload(self.flag, np.zeros(1, dtype=self.dtype))
         else:
             self.flag[0] = 0
+
+    def _maxima_rows(self):
+        return self.n_partials if self.layout in STRIP_LAYOUTS \
+            else _kernels.tree_rows(self.n_partials)
+
+    def maxima_start(self):
+        """After a step's launch: its maxima on their way to the host. On CUDA
+        an asynchronous copy of the rows the tree leaves into one of
+        :data:`MAXIMA_SLOTS` page-locked slots, then an event; the next step
+        may be launched at once (the copy is ordered before it on the stream).
+        Elsewhere the maxima themselves. Returns a handle for :meth:`maxima_wait`."""
+        if not (self.device_buffers and self.copies.arch == "cuda"):
+            return ("now", self.maxima())
+        n = self._maxima_rows()
+        driver = self.copies.driver
+        if self._slots is None:
+            self._slots = pinned_empty((MAXIMA_SLOTS, n, 2), self.dtype, arch="cuda",
+                                       driver=driver)
+            self._events = [driver.event() for _ in range(MAXIMA_SLOTS)]
+            self._partials_at = ndarray_pointer(self.partials)
+        slot = self._slot = (self._slot + 1) % MAXIMA_SLOTS
+        driver.download_async(self._slots[slot].ctypes.data, self._partials_at,
+                              self._slots[slot].nbytes)
+        driver.record(self._events[slot])
+        return ("slot", slot)
+
+    def maxima_wait(self, handle):
+        """``(max|dst - src|, max|dst|)`` of the step of ``handle``
+        (:meth:`maxima_start`), waiting for it if it is still on its way."""
+        kind, value = handle
+        if kind == "now":
+            return value
+        self.copies.driver.wait(self._events[value])
+        d, s = self._slots[value].max(axis=0)
+        return float(d), float(s)
 
     def maxima(self):
         """``(max|dst - src|, max|dst|)`` of the last step: the maximum over the
         rows the tree leaves (``pixel``: row 0 unless the frame is wider than
         the tree's capacity) or over the strips' rows (``sweep``)."""
-        n = self.n_partials if self.layout in STRIP_LAYOUTS \
-            else _kernels.tree_rows(self.n_partials)
+        n = self._maxima_rows()
         if self.device_buffers:
             rows = np.empty((n, 2), dtype=self.dtype)
             self.copies.download(rows, self.partials)

@@ -159,6 +159,59 @@ def decouple(measured, law=None, geometry=None, edge=None, max_iter=iteration.MA
 
 
 def _iterate(step, ws, max_iter, tol, callback, record):
+    """Jacobi iterations (see :func:`_iterate_here`; on the device path
+    without a callback, :func:`_iterate_ahead`)."""
+    if callback is None and hasattr(step, "launch"):
+        return _iterate_ahead(step, ws, max_iter, tol, record)
+    return _iterate_here(step, ws, max_iter, tol, callback, record)
+
+
+def _iterate_ahead(step, ws, max_iter, tol, record):
+    """The iterations of :func:`_iterate_here`, with the same results, decided
+    by the same rules in the same order, but launched one step ahead of the
+    host's decision: step ``q + 1`` is launched before the maxima of step
+    ``q`` are back (``step.launch``, ``step.result``), so the device never
+    waits for the host. Step ``q + 1`` writes the buffer of ``S_(q-1)``, so
+    ``S_q`` is intact when the rule stops at ``q``; the step launched ahead is
+    then wasted work, which is why no step is launched ahead of an iteration
+    whose update, extrapolated geometrically from the last two, is expected
+    to meet the rule (:func:`_launch_ahead`): a wrong guess costs one wait,
+    never a different answer."""
+    start = ws.start
+    other = ws.prev if start is ws.measured else start
+
+    def buffer(q):  # the array holding S_q
+        return start if q == 0 else (ws.nxt if q % 2 else other)
+
+    pending = {1: step.launch(buffer(0), buffer(1))}
+    q = 0
+    for q in range(1, max_iter + 1):
+        if q < max_iter and _launch_ahead(record, tol):
+            pending[q + 1] = step.launch(buffer(q), buffer(q + 1))
+        dmax, smax = step.result(pending.pop(q))
+        record.iterations = q
+        record.max_delta.append(dmax)
+        record.max_signal.append(smax)
+        iteration.check_divergence(record.max_delta, record.max_signal)
+        if iteration.met(dmax, smax, tol):
+            record.converged = True
+            break
+        if q < max_iter and q + 1 not in pending:
+            pending[q + 1] = step.launch(buffer(q), buffer(q + 1))
+    return buffer(q)
+
+
+def _launch_ahead(record, tol):
+    """Whether to launch the next step before the maxima of the one in flight
+    are back: unless the update of the step in flight, extrapolated from the
+    last two (``d_q ~ d_(q-1)^2 / d_(q-2)``), meets the rule."""
+    d, s = record.max_delta, record.max_signal
+    if tol <= 0 or len(d) < 2 or not d[-2] > 0:
+        return True
+    return not iteration.met(d[-1] * d[-1] / d[-2], s[-1], tol)
+
+
+def _iterate_here(step, ws, max_iter, tol, callback, record):
     """Jacobi iterations from ``S_0`` in ``ws.start`` (loaded by the engine:
     ``M``, or the warm start, in ``ws.prev``; on the ``lanes`` path without a
     warm start, the padded measured frame itself, which no step writes);

@@ -35,11 +35,12 @@ import contextlib
 
 from . import _engine, _kernels, _workspace
 from ._alpha import kernel_law_kind, make_alpha, make_exp
+from ._copies import STAGE_CHUNK, HostCopies
 from ._device import (
     CUDA_ERROR_HOST_MEMORY_ALREADY_REGISTERED,
     PIN_MIN_BYTES,
     CudaDriver,
-    HostCopies,
+    copy_policy,
     cuda_driver,
     kind_of,
     pageable_copies,
@@ -68,7 +69,8 @@ __all__ = [
     # workspaces
     "ENGINE_LOCK", "cached_workspaces", "workspace_cache_info", "clear_workspaces",
     # copies
-    "frame_copies", "pinned_empty", "pinned_for_call", "pageable_copies", "PIN_MIN_BYTES",
+    "frame_copies", "pinned_empty", "pinned_for_call", "pageable_copies", "copy_policy",
+    "PIN_MIN_BYTES", "STAGE_CHUNK",
     "CudaDriver", "cuda_driver", "CUDA_ERROR_HOST_MEMORY_ALREADY_REGISTERED", "HostCopies",
     "kind_of", "torch_stream_order",
     # kernels

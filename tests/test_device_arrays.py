@@ -8,6 +8,7 @@ by a wrapper around a NumPy array; page-locking is checked against a stand-in
 CUDA driver. Results must be bit-identical to the NumPy path.
 """
 
+import ctypes
 import gc
 import os
 import sys
@@ -452,3 +453,55 @@ def test_fresh_workspace_isolated_edge(cpu, rng, forced):
         got = ipc_taichi.couple(truth, edge="isolated")
     assert np.abs(got - couple_reference(truth, edge="isolated")).max() <= 1e-10 * 6e4
     engine.clear_workspaces()
+
+
+class _MemDriver:
+    """A stand-in CudaDriver whose device memory is host memory (copies by memmove)."""
+
+    def __init__(self):
+        self.buffers, self.copies = [], []
+
+    def is_pinned(self, address):
+        return False
+
+    def host_alloc(self, nbytes):
+        buffer = ctypes.create_string_buffer(nbytes)
+        self.buffers.append(buffer)
+        return ctypes.addressof(buffer)
+
+    def free_host(self, address):
+        pass
+
+    def upload(self, device, host, nbytes):
+        self.copies.append(("up", nbytes))
+        ctypes.memmove(device, host, nbytes)
+
+    def download(self, host, device, nbytes):
+        self.copies.append(("down", nbytes))
+        ctypes.memmove(host, device, nbytes)
+
+
+def test_staged_copies_cover_the_frame_in_chunks(cpu, rng):
+    """A large pageable frame crosses in STAGE_CHUNK chunks through one staging
+    frame, by the copy threads; small frames and the pageable policy directly."""
+    import taichi as ti
+
+    frame = rng.uniform(0, 6e4, (700, 1100))  # 6.2 MB: 3 chunks and a part
+    assert frame.nbytes >= engine.PIN_MIN_BYTES
+    driver = _MemDriver()
+    copies = engine.HostCopies("cuda", driver=driver)
+    nd = ti.ndarray(ti.f64, frame.shape)
+    copies.upload(nd, frame)
+    assert np.array_equal(nd.to_numpy(), frame)
+    chunks = -(-frame.nbytes // engine.STAGE_CHUNK)
+    assert sorted(driver.copies) == sorted([("up", engine.STAGE_CHUNK)] * (chunks - 1)
+                                           + [("up", frame.nbytes % engine.STAGE_CHUNK)])
+    back = np.empty_like(frame)
+    copies.download(back, nd)
+    assert np.array_equal(back, frame) and len(driver.buffers) == 1  # one staging frame
+    driver.copies.clear()
+    with engine.pageable_copies():
+        copies.download(back, nd)
+    small = np.empty((10, 10))
+    copies.upload(ti.ndarray(ti.f64, small.shape), small)
+    assert driver.copies == [("down", frame.nbytes), ("up", small.nbytes)]

@@ -224,3 +224,26 @@ def test_wide_frames_and_out_as_input_on_cuda():
     assert back.data_ptr() == t.data_ptr()
     assert np.array_equal(t.cpu().numpy(), want, equal_nan=True)
     assert t[10, 11].item() == measured[10, 11]
+
+
+def test_copy_policies_and_steps_ahead_give_the_same_bits():
+    """Staged copies (the default), page-locked per call and pageable copies
+    give the same result; so do steps launched ahead of the stopping rule's
+    decision and steps waited for one by one (a callback makes the engine
+    wait); and the result is the NumPy reference's to 1e-10."""
+    from ipc_taichi.reference import decouple_reference
+
+    rng = np.random.default_rng(11)
+    measured = couple_reference(rng.uniform(0, 60000, (1100, 1030)))  # above PIN_MIN_BYTES
+    want, info = ipc_taichi.decouple(measured, arch="cuda", precision="f64", full_output=True)
+    for policy in ("register", "pageable"):
+        with engine.copy_policy(policy):
+            got = ipc_taichi.decouple(measured, arch="cuda", precision="f64")
+        assert np.array_equal(got, want), policy
+    seen = []
+    got = ipc_taichi.decouple(measured, arch="cuda", precision="f64",
+                              callback=lambda q, estimate: seen.append(q))
+    assert np.array_equal(got, want) and seen == list(range(1, info.iterations + 1))
+    ref, iterations = decouple_reference(measured)[:2]
+    assert iterations == info.iterations
+    assert np.abs(want - ref).max() <= 1e-10 * np.abs(ref).max()

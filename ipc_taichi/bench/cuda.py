@@ -1,6 +1,6 @@
 """The CUDA rows of the benchmark (:func:`measure_cuda`): device-resident,
-host in and out (page-locked for the call, from the caller's pinned buffers,
-pageable), the copies alone, a stack, the CuPy peer and the floor on the
+host in and out (staged, the default; from the caller's pinned buffers;
+pageable; page-locked for the call), the copies alone, a stack, the CuPy peer and the floor on the
 device. ``arch="cpu"`` runs the same code with PyTorch CPU tensors standing in
 for the device (the tests do). The engine is asked only through its public
 face, :mod:`ipc_taichi.engine` (:func:`~ipc_taichi.engine.workspace_cache_info`,
@@ -143,7 +143,7 @@ def measure_cuda(size=CUDA_SIZE, repeats=10, stack=STACK_FRAMES, arch="cuda",
             return ipc_taichi.decouple(data, arch=arch, precision=precision,  # noqa: B023
                                        full_output=True, **kw)
 
-        # NumPy in and out: page-locked for the call (the default)
+        # NumPy in and out: staged through the workspace's page-locked frame (the default)
         engine.clear_workspaces()
         free0 = engine.cuda_driver().memory()[0] if arch == "cuda" else None
         med, best, (sig, fi) = _timed(lambda: run(measured), sync, repeats)  # noqa: B023
@@ -160,10 +160,14 @@ def measure_cuda(size=CUDA_SIZE, repeats=10, stack=STACK_FRAMES, arch="cuda",
         med, best, (sig, fi) = _timed(lambda: run(pin_in, out=pin_out),  # noqa: B023
                                       sync, repeats)
         add("host in/out, pinned buffers", med, best, sig, fi.iterations)
-        # the same with pageable copies (no page-locking)
+        # the same with pageable copies (no staging, no page-locking)
         with engine.pageable_copies():
             med, best, (sig, fi) = _timed(lambda: run(measured), sync, repeats)  # noqa: B023
         add("host in/out, pageable copies", med, best, sig, fi.iterations)
+        # the same with the caller's frames page-locked for each call
+        with engine.copy_policy("register"):
+            med, best, (sig, fi) = _timed(lambda: run(measured), sync, repeats)  # noqa: B023
+        add("host in/out, page-locked per call", med, best, sig, fi.iterations)
         # the copies alone, through the workspace the runs above used
         copies = engine.frame_copies()
         if copies is not None:
@@ -194,7 +198,7 @@ def measure_cuda(size=CUDA_SIZE, repeats=10, stack=STACK_FRAMES, arch="cuda",
             med, best, (s, q) = _timed(lambda: peer.decouple(m_dev), sync, repeats)  # noqa: B023
             add("CuPy peer, device-resident", med, best, cp.asnumpy(s), q)
             med, best, (s, q) = _timed(
-                lambda: cp.asnumpy(peer.decouple(cp.asarray(measured))[0]),  # noqa: B023
+                lambda: _host_result(peer.decouple(cp.asarray(measured)), cp),  # noqa: B023
                 sync, repeats)
             add("CuPy peer, host in/out (pageable)", med, best, s, q)
             m_dev = None
@@ -224,6 +228,12 @@ def measure_cuda(size=CUDA_SIZE, repeats=10, stack=STACK_FRAMES, arch="cuda",
                          "best_ms": dev_ms / max(1, fi.iterations)})
         engine.clear_workspaces()
     return {"rows": rows, "notes": notes, "device": device, "arch": arch}
+
+
+def _host_result(result, cp):
+    """The CuPy peer's ``(signal, iterations)`` with the signal on the host."""
+    signal, iterations = result
+    return cp.asnumpy(signal), iterations
 
 
 def laws_params(dtype):
