@@ -38,12 +38,13 @@ def test_tiny_run_writes_results(tmp_path):
         assert r["repeats"] == 2 and len(r["times_s"]) == 2 and r["max_error"] < 0.05
         assert r["iterations"] == rows["numpy"]["iterations"]
     # NumPy's full-frame temporaries (several frames of 512 KiB, above malloc's mmap
-    # threshold) show in the peak RSS. Taichi's reused working arrays may come from
-    # memory the process already holds, but the measured frame is read into new
-    # memory after the base RSS is taken, so the growth is at least that frame. (At
-    # 64x64 temporaries could be served from held memory: a fresh clone's CI saw 0.)
+    # threshold) show in the peak RSS. Taichi's working arrays, and even the measured
+    # frame, may come from memory the process already holds resident (seen on a 2-core
+    # AMD EPYC VM: the frame's 512 KiB read after the base RSS grew it by 0): the
+    # Taichi row's RSS growth is a lower bound only, never negative.
     assert rows["numpy"]["peak_bytes"] >= 2 * rows["numpy"]["frame_bytes"]
-    assert rows["taichi-cpu-f64"]["peak_bytes"] >= rows["taichi-cpu-f64"]["frame_bytes"]
+    assert rows["taichi-cpu-f64"]["peak_bytes"] >= 0
+    assert isinstance(rows["taichi-cpu-f64"]["peak_exact"], bool)
     # the first call compiles the kernels (seconds), a warm call on 256x256 takes milliseconds
     taichi = rows["taichi-cpu-f64"]
     assert taichi["first_call_s"] > 5 * taichi["warm_call_s"] > 0
