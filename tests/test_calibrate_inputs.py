@@ -233,6 +233,17 @@ def test_uncal_ramp_read_as_charge_since_its_first_read(tmp_path, rng):
     assert np.nanmedian(f.data[:, -1]) == pytest.approx(4 * 600.0, rel=0.05)
 
 
+@pytest.mark.parametrize("shape", [(NY, NX), (3, NY, NX), (2, 1, NY, NX)])
+def test_raw_reads_that_are_no_ramp_are_named_as_holding_bias(tmp_path, rng, shape):
+    """A raw bias read (integer, 12 kDN, no ramp to subtract its first read from)
+    is refused as bias, not read as 24 ke- of charge."""
+    raw = np.clip(rng.normal(12000, 40, shape), 0, 65535).astype(np.uint16)
+    path = _write(tmp_path / "raw.fits", raw, bunit="DN")
+    with pytest.raises(IPCInputError,
+                       match=r"raw\.fits\[SCI\].*raw reads hold the detector's bias"):
+        read_frames(path, gain=2.0, role="dark")
+
+
 def test_flat_ramp_saturated_in_every_read_is_said(tmp_path, rng):
     ramp = np.full((4, NY, NX), 60000.0)
     groupdq = np.full((1, 4, NY, NX), 2, np.uint32)  # SATURATED

@@ -38,8 +38,9 @@ Each case is said in ``meta["units_note"]``; never silent.
 **Refusals** (:class:`~ipc_taichi.errors.IPCInputError`, one line naming the
 file and HDU): bias products (:func:`ipc_taichi.products.missions.check_not_bias`,
 the same refusal as ``decouple``), other JWST reference files but darks
-(``REFTYPE``), rates, and files in which no pixel has a usable read (all
-saturated: said). A raw integer 4-D ramp (``_uncal``), which ``decouple``
+(``REFTYPE``), rates, raw reads that are not a ramp (integer frames hold the
+bias: a raw bias read is named as one), and files in which no pixel has a
+usable read (all saturated: said). A raw integer 4-D ramp (``_uncal``), which ``decouple``
 refuses for the bias in it, is accepted: the first read of each integration
 is subtracted, so the data are the charge collected since the first read.
 """
@@ -232,7 +233,13 @@ def _science_hdu(path, hdul, hdu):
     4-D ramp (``_uncal``) accepted: calibrate subtracts the first read."""
     index, label = science_indices(path, hdul, hdu, raw_ok=True)[0]
     h = hdul[index]
-    return index, label, h.header.get("NAXIS") == 4 and h.header["BITPIX"] > 0
+    integer = h.header["BITPIX"] > 0
+    if integer and not (h.header.get("NAXIS") == 4 and h.header.get("NAXIS3", 1) >= 2):
+        raise IPCInputError(
+            f"{label}: integer {'x'.join(map(str, h.shape))} reads: raw reads hold the "
+            "detector's bias, not collected charge; give the raw ramp (4-D, 2 or more reads: "
+            "calibrate subtracts its first read) or frames with the bias removed")
+    return index, label, integer
 
 
 def _check_reftype(primary, label):
