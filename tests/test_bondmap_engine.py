@@ -115,6 +115,7 @@ def test_isolated_conserves_charge_and_stacks_use_one_map(cpu):
             assert np.abs(m[k] - couple_reference(stack[k], model=model)).max() <= 1e-10 * 6e4
 
 
+@pytest.mark.slow  # a lanes kernel compiled per width (minutes in all on 2 cores)
 @pytest.mark.parametrize("width", [1, 5, 17, 33])
 def test_lanes_at_awkward_widths(cpu, width):
     """Rows narrower than, ending inside and crossing one vector: ``lanes``
