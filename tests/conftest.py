@@ -65,6 +65,24 @@ def torch():
     return pytest.importorskip("torch", reason=optional("torch"))
 
 
+@pytest.fixture()
+def small_dark(tmp_path):
+    """Hot pixels in a 3-group dark ramp (DN, gain 2), coupled by the independent
+    generator's constant law (tests of calibrate's workflow and its refusals)."""
+    from tests.helpers import write_sci
+    from tests.independent import ipcgen
+
+    rng = np.random.default_rng(4)
+    truth = np.full((3, 96, 96), 2.0)
+    pos = [(20, 20), (20, 60), (60, 20), (60, 60), (40, 40), (75, 75), (15, 80), (80, 15)]
+    for g in range(3):
+        for k, (y, x) in enumerate(pos):
+            truth[g, y, x] = (g + 1) * (3000.0 + 2000.0 * k)
+    ramp = np.array([ipcgen.couple(t, "constant") for t in truth])
+    ramp += rng.normal(0, 3.0, ramp.shape)
+    return write_sci(tmp_path / "dark.fits", ramp[None] / 2.0, bunit="DN")
+
+
 @pytest.fixture
 def rng():
     return np.random.default_rng(12345)

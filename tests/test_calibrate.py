@@ -158,19 +158,6 @@ def test_law_fit_only_hot_pixels_says_what_was_assumed():
 
 # ---- the workflow and bad input -------------------------------------------------------
 
-@pytest.fixture()
-def small_dark(tmp_path):
-    rng = np.random.default_rng(4)
-    truth = np.full((3, 96, 96), 2.0)
-    pos = [(20, 20), (20, 60), (60, 20), (60, 60), (40, 40), (75, 75), (15, 80), (80, 15)]
-    for g in range(3):
-        for k, (y, x) in enumerate(pos):
-            truth[g, y, x] = (g + 1) * (3000.0 + 2000.0 * k)
-    ramp = np.array([ipcgen.couple(t, "constant") for t in truth])
-    ramp += rng.normal(0, 3.0, ramp.shape)
-    return write_sci(tmp_path / "dark.fits", ramp[None] / 2.0, bunit="DN")
-
-
 def test_calibrate_python_and_model_file(cpu, tmp_path, small_dark):
     out = tmp_path / "model.json"
     res = calibrate([small_dark], output=str(out), gain=2.0, report_path=str(tmp_path / "r.json"))

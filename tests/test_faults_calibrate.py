@@ -13,7 +13,6 @@ import pytest
 
 from ipc_taichi.calibrate import calibrate, workflow
 from tests.helpers import write_sci
-from tests.independent import ipcgen
 
 
 def _one_line(r, tmp_path, *words):
@@ -24,20 +23,6 @@ def _one_line(r, tmp_path, *words):
         assert w in line, line
     assert not (tmp_path / "m.json").exists()
     return line
-
-
-@pytest.fixture()
-def small_dark(tmp_path):
-    """Hot pixels in a 3-group dark ramp (DN, gain 2), coupled by a constant law."""
-    rng = np.random.default_rng(4)
-    truth = np.full((3, 96, 96), 2.0)
-    pos = [(20, 20), (20, 60), (60, 20), (60, 60), (40, 40), (75, 75), (15, 80), (80, 15)]
-    for g in range(3):
-        for k, (y, x) in enumerate(pos):
-            truth[g, y, x] = (g + 1) * (3000.0 + 2000.0 * k)
-    ramp = np.array([ipcgen.couple(t, "constant") for t in truth])
-    ramp += rng.normal(0, 3.0, ramp.shape)
-    return write_sci(tmp_path / "dark.fits", ramp[None] / 2.0, bunit="DN")
 
 
 def test_a_one_level_flat_without_ipc_is_refused_in_one_line(cpu, cli, tmp_path):
