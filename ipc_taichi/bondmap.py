@@ -214,7 +214,7 @@ class BondMap:
                 and bool((self.values == other.values).all()))
 
     def __hash__(self):
-        return hash((self.offsets, self.values.shape, self.values.tobytes()[:4096]))
+        return hash((self.offsets, self.values.shape, self.values.ravel()[:512].tobytes()))
 
 
 def kernel_offsets(kernels):

@@ -23,6 +23,7 @@ started by dask-jobqueue or by ``srun``. This module holds what those need
 import os
 import sys
 
+from . import runtime
 from .errors import IPCInputError
 from .products import written_by_ipc_taichi
 from .runtime import THREADS_ENV
@@ -38,14 +39,11 @@ def available_cores():
     """CPUs this process may use: ``$SLURM_CPUS_PER_TASK`` (a positive integer),
     else the size of the affinity mask (what ``srun``/``taskset`` bound it to),
     else ``os.cpu_count()``."""
-    text = os.environ.get(SLURM_CPUS_ENV, "").strip()
-    if text:
-        try:
-            cores = int(text)
-        except ValueError:
-            cores = 0
-        if cores < 1:
-            raise IPCInputError(f"${SLURM_CPUS_ENV}={text!r}: expected a positive integer")
+    try:
+        cores = runtime.positive_env(SLURM_CPUS_ENV)
+    except ValueError as exc:
+        raise IPCInputError(f"${exc}") from None
+    if cores is not None:
         return cores
     try:
         return len(os.sched_getaffinity(0)) or 1

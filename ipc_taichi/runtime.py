@@ -47,8 +47,8 @@ import numpy as np
 from .errors import ArchUnavailableError
 from .gpus import cuda_present
 
-__all__ = ["RuntimeInfo", "init", "current", "cpu_threads", "ARCH_ENV", "PRECISION_ENV",
-           "THREADS_ENV", "CACHE_ENV"]
+__all__ = ["RuntimeInfo", "init", "current", "cpu_threads", "positive_env", "ARCH_ENV",
+           "PRECISION_ENV", "THREADS_ENV", "CACHE_ENV"]
 
 ARCH_ENV = "IPC_TAICHI_ARCH"
 PRECISION_ENV = "IPC_TAICHI_PRECISION"
@@ -106,16 +106,22 @@ def _resolve(value, env, allowed, default, what):
 def cpu_threads():
     """The cap on Taichi's CPU threads from ``$IPC_TAICHI_THREADS``, or ``None``
     when it is unset or empty (Taichi then uses every core)."""
-    text = os.environ.get(THREADS_ENV, "").strip()
+    return positive_env(THREADS_ENV)
+
+
+def positive_env(name):
+    """The positive integer in environment variable ``name``, or ``None`` when
+    it is unset or empty; anything else is refused in one line (a ValueError)."""
+    text = os.environ.get(name, "").strip()
     if not text:
         return None
     try:
-        threads = int(text)
+        value = int(text)
     except ValueError:
-        threads = 0
-    if threads < 1:
-        raise ValueError(f"{THREADS_ENV}={text!r}: expected a positive integer")
-    return threads
+        value = 0
+    if value < 1:
+        raise ValueError(f"{name}={text!r}: expected a positive integer")
+    return value
 
 
 def on_reset(hook):
