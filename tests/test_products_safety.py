@@ -21,6 +21,16 @@ def _start(*args):
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV)
 
 
+def _written_temporary(directory):
+    for name in os.listdir(directory):
+        try:
+            if name.startswith(".tmp-") and os.path.getsize(directory / name) >= 2880:
+                return True
+        except OSError:  # removed between the listing and the size
+            pass
+    return False
+
+
 @pytest.mark.parametrize("sig, code, delay", [
     (signal.SIGTERM, 143, 0.02),  # early: Taichi may be compiling (it swallows exceptions)
     (signal.SIGINT, 130, 0.05), (signal.SIGTERM, 143, 0.3)])
@@ -30,14 +40,21 @@ def test_signal_mid_run_leaves_nothing(tmp_path, rng, sig, code, delay):
     out = tmp_path / "out"
     out.mkdir()
     proc = _start("decouple", src, out / "big.fits", "--tile", 24, "--tol", 0, "--max-iter", 20)
-    deadline = time.time() + 120
-    while not os.listdir(out) and proc.poll() is None and time.time() < deadline:
-        time.sleep(0.02)
-    assert proc.poll() is None, proc.communicate()[1]  # still running, its temporary file there
-    assert [p.startswith(".tmp-") for p in os.listdir(out)] == [True]
-    time.sleep(delay)
-    proc.send_signal(sig)
-    _, err = proc.communicate(timeout=120)
+    try:
+        # the writer's own file: a name reserved by mkstemp is removed at once and
+        # created again by the writer, so wait for one that holds a FITS header
+        deadline = time.time() + 120
+        while not _written_temporary(out) and proc.poll() is None and time.time() < deadline:
+            time.sleep(0.02)
+        assert proc.poll() is None, proc.communicate()[1]  # still running, its temporary file there
+        assert [p.startswith(".tmp-") for p in os.listdir(out)] == [True]
+        time.sleep(delay)
+        proc.send_signal(sig)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:  # a failed assertion must not leave the run behind
+            proc.kill()
+            proc.communicate()
     assert proc.returncode == code, err
     assert os.listdir(out) == []
     assert len(err.strip().splitlines()) == 1 and "removed" in err
