@@ -60,7 +60,8 @@ from .sampling import block_sum
 
 __all__ = ["RampPair", "RampData", "RampModel", "whitened", "read_ramps", "write_ramps",
            "is_ramp_file",
-           "read_times", "expected_reads", "simulate_ramp", "ramp_gap", "describe_ramp_misfit",
+           "read_times", "expected_reads", "expected_mean", "increment_factors", "whiten",
+           "simulate_ramp", "ramp_gap", "describe_ramp_misfit",
            "RAMP_UNEXPLAINED_Z"]
 
 RAMP_UNEXPLAINED_Z = 5.0  # a pattern is described when it stands out at this many sigma
@@ -237,6 +238,19 @@ def _as_ramp_model(model):
     return model if isinstance(model, RampModel) else RampModel(model)
 
 
+def _afterglow_read_out(frame, extra):
+    """What an after-image ``extra`` adds to the reads, to first order."""
+    return frame.readout(extra) - frame.readout(np.zeros_like(extra))
+
+
+def expected_mean(model, ramp, extra=None):
+    """The mean of every read ``(NREADS, ny, nx)`` of :func:`expected_reads`
+    alone (no variance propagated: what a fit of the mean evaluates)."""
+    frame = _as_ramp_model(model).frame
+    mean = frame.expected(_charge_scene(ramp), ramp.oversample)
+    return mean if extra is None else mean + _afterglow_read_out(frame, extra)
+
+
 def expected_reads(model, ramp, extra=None):
     """``(mean, shot variance, read variance)`` of every read (the first two
     ``(NREADS, ny, nx)``): the frame model's prediction of ``SCENE t_i``
@@ -249,7 +263,7 @@ def expected_reads(model, ramp, extra=None):
     mean, var, _ = frame.predict_parts(_charge_scene(ramp), ramp.oversample)
     shot = np.clip(var - frame.read_variance(), 0.0, None)
     if extra is not None:
-        mean = mean + frame.readout(extra) - frame.readout(np.zeros_like(extra))
+        mean = mean + _afterglow_read_out(frame, extra)
         shot = shot + np.clip(extra, 0.0, None)
     return mean, shot, model.read_variance()
 
@@ -277,20 +291,31 @@ def simulate_ramp(model, ramp, rng, extra=None):
     return out
 
 
-def _whitened(reads, mean, shot, r, valid):
-    """Whitened increments ``(NREADS, npix)`` of the valid pixels (module docstring)."""
+def increment_factors(reads, mean, shot, r, valid):
+    """The increments' covariance of the valid pixels (module docstring) as
+    Cholesky factors ``(npix, NREADS, NREADS)``, the residual increments
+    ``(NREADS, npix)`` (measured less expected) and their variances."""
     d = np.diff(reads, axis=0, prepend=0.0)[:, valid]
     mu = np.diff(mean, axis=0, prepend=0.0)[:, valid]
-    s = shot[:, valid]
-    var = np.diff(s, axis=0, prepend=0.0) + 2.0 * r
+    var = np.diff(shot[:, valid], axis=0, prepend=0.0) + 2.0 * r
     var[0] -= r  # read 0 follows the reset, which was removed: one read's noise
     n = len(var)
     cov = np.zeros((d.shape[1], n, n))
     idx = np.arange(n)
     cov[:, idx, idx] = np.clip(var, 1e-9, None).T
     cov[:, idx[1:], idx[:-1]] = cov[:, idx[:-1], idx[1:]] = -r
-    chol = np.linalg.cholesky(cov)
-    return np.linalg.solve(chol, (d - mu).T[..., None])[..., 0].T
+    return np.linalg.cholesky(cov), d - mu, var
+
+
+def whiten(chol, residual):
+    """Residual increments ``(NREADS, npix)`` whitened by ``chol``."""
+    return np.linalg.solve(chol, residual.T[..., None])[..., 0].T
+
+
+def _whitened(reads, mean, shot, r, valid):
+    """Whitened increments ``(NREADS, npix)`` of the valid pixels (module docstring)."""
+    chol, residual, _ = increment_factors(reads, mean, shot, r, valid)
+    return whiten(chol, residual)
 
 
 def _neighbour_products(w, valid):
