@@ -391,7 +391,10 @@ def ramp_gap(data, model=None, n_sim=8, seed=0):
     gaps = np.array([s[0] for s in sims])
     reads = np.array([s[1] for s in sims])
     out = {"gap": gap_now, "gap_per_read": per_read.tolist(), "neighbour_correlation": nb,
-           "gap_floor": float(gaps.mean()), "gap_floor_sigma": float(gaps.std(ddof=1)),
+           "gap_floor": float(gaps.mean()),
+           # a mean of n squared unit normals scatters by at least sqrt(2 / n):
+           # a few simulations can say less by chance
+           "gap_floor_sigma": max(float(gaps.std(ddof=1)), math.sqrt(2.0 / n)),
            "gap_per_read_floor": (reads.mean(axis=0).tolist(), reads.std(axis=0, ddof=1).tolist()),
            # a mean product's scatter is at least that of n independent products
            "neighbour_floor": {a: (float(np.mean([s[2][a] for s in sims])),
