@@ -1,6 +1,8 @@
 """Name what a ramp file's time structure shows and the frame model lacks:
 ``persistence``, ``correlated_read_noise``, ``random_telegraph_noise``
-(:mod:`.ramp_effects`), on top of the frame model read by read (:mod:`.ramps`).
+(:mod:`.ramp_effects`) and the frame effects ``brighter_fatter``,
+``signal_dependent_ipc``, ``classical_nonlinearity`` evaluated read by read
+(:mod:`.ramp_chain`), on top of the frame model read by read (:mod:`.ramps`).
 
 Procedure (:func:`discover_ramps`)
 ----------------------------------
@@ -25,6 +27,12 @@ Procedure (:func:`discover_ramps`)
      levels (one parameter per pixel), evidence its chi-square excess over
      its degrees of freedom less
      ``ln n`` per pixel; ``jump_e`` the median of their largest departures.
+   - ``brighter_fatter``, ``signal_dependent_ipc`` (on a constant starting
+     law), ``classical_nonlinearity``: least squares of the whitened
+     increments (:func:`~.ramp_chain.fit_frame_effect`), evidence
+     ``delta chi^2 - k ln n``; their contradictions and ranges are the
+     frame vocabulary's, and brighter-fatter and signal-dependent IPC are
+     judged against each other (:func:`~.ramp_chain.rival_contradiction`).
 
 3. A candidate is named when its evidence passes the threshold (25), its fit
    does not contradict the effect and lies inside its physical range
@@ -35,9 +43,9 @@ Procedure (:func:`discover_ramps`)
    strongest such one is added; the search repeats until the gap lies within
    3 floor scatters of the floor or nothing qualifies.
 
-The frame effects (brighter-fatter, signal-dependent IPC, non-linearity...)
-are not searched on ramps yet: a ramp file's starting model carries them
-from a coupling-model file (``start``) or not at all.
+The other frame effects (diffusion, geometry terms, reciprocity...) are not
+searched on ramps: a ramp file's starting model carries them from a
+coupling-model file (``start``) or not at all.
 """
 
 import math

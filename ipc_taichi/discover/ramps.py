@@ -38,10 +38,10 @@ floor simulations reproduce; read noise shared along rows or columns, or
 brighter-fatter's moving boundaries, add to it). The floor is the model
 simulated with fresh noise (:func:`ramp_gap` with ``n_sim``).
 
-What this module does not do yet: it names no effect. The ramp vocabulary
-(``persistence``, ``correlated_read_noise``, ``random_telegraph_noise``) and
-the search over it are not written; :func:`describe_ramp_misfit` says in
-words where the time structure departs from the model.
+This module names no effect: the search over the ramp vocabulary and the
+frame effects read by read is :mod:`.ramp_search` (:mod:`.ramp_effects`,
+:mod:`.ramp_chain`); :func:`describe_ramp_misfit` says in words where the
+time structure departs from the model.
 """
 
 import math
@@ -376,7 +376,8 @@ def ramp_gap(data, model=None, n_sim=8, seed=0):
 
     Returns a dict: ``gap``, ``gap_per_read``, ``neighbour_correlation``
     (``{"x", "y"}``), and from the simulations ``gap_floor``,
-    ``gap_floor_sigma``, ``gap_per_read_floor`` (mean, scatter),
+    ``gap_floor_sigma`` (at least ``sqrt(2 / n)`` for ``n`` whitened
+    increments), ``gap_per_read_floor`` (mean, scatter),
     ``neighbour_floor`` (``{axis: (mean, scatter)}``) and ``complete`` (the
     gap within 3 floor scatters of the floor); ``unexplained`` from
     :func:`describe_ramp_misfit` when it is not.
