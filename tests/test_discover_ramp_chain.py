@@ -3,8 +3,9 @@ of the independent generator ``tests/independent/ramplab.py`` (NumPy only:
 boundaries moved while collecting, a pairwise coupling growing with the
 pair's mean charge, an exponential saturation of the read value), each
 hidden effect is named alone, at its truth, and closes the gap to its floor;
-brighter-fatter is never named signal-dependent IPC nor the reverse, and a
-null ramp names nothing. 48x48 pixels x 6 reads of 3 s (45-80 ke- at the
+brighter-fatter is never named signal-dependent IPC nor the reverse (a
+coupling outside the paper's family, which fits both alike, names neither),
+and a null ramp names nothing. 48x48 pixels x 6 reads of 3 s (45-80 ke- at the
 last read of the patches and hot pixels)."""
 
 import math
@@ -70,6 +71,16 @@ def test_classical_nonlinearity_named_at_its_deficit(tmp_path):
     _closed(report)
     truth = 1.0 - qs * (1.0 - math.exp(-5e4 / qs)) / 5e4
     assert report["steps"][0]["params"]["deficit_at_50ke"] == pytest.approx(truth, rel=0.1)
+
+
+def test_coupling_outside_the_family_is_neither_rival(tmp_path):
+    # a coupling growing linearly with the pair's mean charge is, under
+    # constant light, as much a brighter-fatter flow as a donlon2018-family
+    # law: neither is named, the verdict is incomplete and says why
+    report = _report(tmp_path, 425, sdipc=0.1, sdipc_linear=True)
+    assert not set(RIVALS) & set(report["missing_effects"])
+    assert report["complete"] is False
+    assert any("do not tell it from" in u for u in report["unexplained"])
 
 
 def test_rivals_judged_against_each_other():

@@ -91,10 +91,13 @@ def _collect_bf(rate, times, kx, ky, rng):
     return np.array(out)
 
 
-def _couple_sd(q, g):
-    """Pairwise coupling by the signal-dependent alpha (module docstring)."""
+def _couple_sd(q, g, linear=False):
+    """Pairwise coupling by the signal-dependent alpha (module docstring;
+    ``linear``: ``ALPHA (1 + g m / 25 ke-)`` instead, a law outside the
+    paper's family)."""
     def alpha(s, nb):
-        return ALPHA * (1.0 + g * (2.0 / np.pi) * np.arctan(0.5 * (s + nb) / SDIPC_SCALE))
+        m = 0.5 * (s + nb) / SDIPC_SCALE
+        return ALPHA * (1.0 + g * (m if linear else (2.0 / np.pi) * np.arctan(m)))
 
     out = q.copy()
     pad = np.pad(q, ((0, 0), (1, 1), (1, 1)))
@@ -107,13 +110,14 @@ def _couple_sd(q, g):
 
 def make_ramp(n, nreads, tframe, readnoise, rng, persistence=None, row_noise=0.0,
               telegraph=None, steps_up=None, brighter_fatter=None, sdipc=None,
-              nonlinearity=None):
+              nonlinearity=None, sdipc_linear=False):
     """``(rate, reads)`` of one ramp (module docstring). ``persistence`` is
     ``(A, tau)`` (per second, s), ``row_noise`` the row offsets' RMS (e-),
     ``telegraph`` ``(fraction of pixels, jump in e-)``, ``steps_up`` likewise
     for one-way steps, ``brighter_fatter`` ``(kx, ky)`` (fraction of a
     pixel's arrivals per boundary at 50 ke- difference), ``sdipc`` ``g``,
-    ``nonlinearity`` ``Qs`` (e-)."""
+    ``nonlinearity`` ``Qs`` (e-), ``sdipc_linear`` the coupling linear in
+    the pair's mean charge."""
     rate = scene_rate(n, rng)
     times = tframe * np.arange(1, nreads + 1)
     extra = np.zeros((nreads, n, n))
@@ -129,7 +133,7 @@ def make_ramp(n, nreads, tframe, readnoise, rng, persistence=None, row_noise=0.0
             charge = charge + np.cumsum(rng.poisson(extra), axis=0)
     else:
         charge = np.cumsum(rng.poisson(rate[None] * tframe + extra).astype(np.float64), axis=0)
-    reads = _couple(charge, ALPHA) if sdipc is None else _couple_sd(charge, sdipc)
+    reads = _couple(charge, ALPHA) if sdipc is None else _couple_sd(charge, sdipc, sdipc_linear)
     if nonlinearity is not None:
         reads = nonlinearity * (1.0 - np.exp(-reads / nonlinearity))
     reads += rng.normal(0.0, readnoise, reads.shape)
