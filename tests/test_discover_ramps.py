@@ -5,7 +5,8 @@ row noise, telegraph pixels and one-way steps). The statistics: a null ramp
 is complete and each hidden time-domain effect
 leaves the verdict incomplete with the words that point at it; the search
 (``ramp_search``) names persistence, correlated read noise and telegraph
-pixels, each at its truth, and refuses what contradicts them."""
+pixels, each at its truth, and refuses what contradicts them (the frame
+effects on ramps: ``tests/test_discover_ramp_chain.py``)."""
 
 import json
 
@@ -205,11 +206,12 @@ def test_benchmark_ramps_tiny_run():
     assert out["persistence"]["fraction"] == pytest.approx(0.03, rel=0.2)
 
 
-def test_brighter_fatter_ramp_is_not_named_a_ramp_effect(tmp_path):
-    # brighter-fatter (a frame effect the ramp search does not fit yet), made
-    # by the ramp model itself: the lines through the patches share a misfit,
-    # the lines with no light on or next to them do not, so it is not read
-    # noise; nothing is named and the verdict says the misfit grows with time
+def test_brighter_fatter_ramp_is_named_brighter_fatter(tmp_path):
+    # brighter-fatter made by the ramp model itself (the frame vocabulary's
+    # boundary shifts, evaluated while collecting): the lines through the
+    # patches share a misfit, the lines with no light on or next to them do
+    # not, so it is not read noise; it is named brighter_fatter, at its
+    # deflections, and not signal-dependent IPC
     from ipc_taichi.discover.model import DetectorModel
     from ipc_taichi.discover.ramps import RampModel, RampPair
 
@@ -226,6 +228,9 @@ def test_brighter_fatter_ramp_is_not_named_a_ramp_effect(tmp_path):
     path = write_ramps(str(tmp_path / "bf.fits"), [(rate, reads, 2.0)], 10.0,
                        law="constant:0.0125")
     report = discover_ramps(path)
-    assert report["missing_effects"] == [] and report["complete"] is False
+    assert report["missing_effects"] == ["brighter_fatter"] and report["complete"] is True
     assert "light falls" in report["not_named"]["correlated_read_noise"]
-    assert "rising with time" in report["unexplained"][0]
+    p = report["steps"][0]["params"]
+    assert p["deflection_x_at_50ke"] == pytest.approx(0.04, rel=0.1)
+    assert p["deflection_y_at_50ke"] == pytest.approx(0.05, rel=0.1)
+    assert p["reach"] == pytest.approx(0.0, abs=0.05)

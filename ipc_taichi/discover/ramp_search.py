@@ -1,6 +1,8 @@
 """Name what a ramp file's time structure shows and the frame model lacks:
 ``persistence``, ``correlated_read_noise``, ``random_telegraph_noise``
-(:mod:`.ramp_effects`), on top of the frame model read by read (:mod:`.ramps`).
+(:mod:`.ramp_effects`) and the frame effects ``brighter_fatter``,
+``signal_dependent_ipc``, ``classical_nonlinearity`` evaluated read by read
+(:mod:`.ramp_chain`), on top of the frame model read by read (:mod:`.ramps`).
 
 Procedure (:func:`discover_ramps`)
 ----------------------------------
@@ -25,6 +27,12 @@ Procedure (:func:`discover_ramps`)
      levels (one parameter per pixel), evidence its chi-square excess over
      its degrees of freedom less
      ``ln n`` per pixel; ``jump_e`` the median of their largest departures.
+   - ``brighter_fatter``, ``signal_dependent_ipc`` (on a constant starting
+     law), ``classical_nonlinearity``: least squares of the whitened
+     increments (:func:`~.ramp_chain.fit_frame_effect`), evidence
+     ``delta chi^2 - k ln n``; their contradictions and ranges are the
+     frame vocabulary's, and brighter-fatter and signal-dependent IPC are
+     judged against each other (:func:`~.ramp_chain.rival_contradiction`).
 
 3. A candidate is named when its evidence passes the threshold (25), its fit
    does not contradict the effect and lies inside its physical range
@@ -35,9 +43,9 @@ Procedure (:func:`discover_ramps`)
    strongest such one is added; the search repeats until the gap lies within
    3 floor scatters of the floor or nothing qualifies.
 
-The frame effects (brighter-fatter, signal-dependent IPC, non-linearity...)
-are not searched on ramps yet: a ramp file's starting model carries them
-from a coupling-model file (``start``) or not at all.
+The other frame effects (diffusion, geometry terms, reciprocity...) are not
+searched on ramps: a ramp file's starting model carries them from a
+coupling-model file (``start``) or not at all.
 """
 
 import math
@@ -46,7 +54,9 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 
 from ..model import CouplingModel
+from .effects import contradiction, implausible
 from .model import DetectorModel
+from .ramp_chain import fit_frame_effect, offered, rival_contradiction
 from .ramp_effects import (
     RAMP_EFFECTS,
     earlier_charge,
@@ -58,6 +68,7 @@ from .ramps import (
     RampData,
     RampModel,
     expected_reads,
+    increment_factors,
     ramp_gap,
     read_ramps,
     whitened,
@@ -71,20 +82,13 @@ MIN_EXPLAINED_FRACTION = 0.25
 
 def _cholesky(model, ramps, k):
     """The Cholesky factors of ramp ``k``'s increments (per valid pixel), its
-    residual increments and valid mask under ``model`` (no after-image)."""
+    residual increments, valid mask and increment variances under ``model``
+    (no after-image)."""
     ramp = ramps[k]
     mean, shot, r = expected_reads(model, ramp)
     valid = model.valid(ramp)
-    d = np.diff(ramp.reads, axis=0, prepend=0.0)[:, valid] - \
-        np.diff(mean, axis=0, prepend=0.0)[:, valid]
-    var = np.diff(shot[:, valid], axis=0, prepend=0.0) + 2.0 * r
-    var[0] -= r
-    n = len(var)
-    cov = np.zeros((d.shape[1], n, n))
-    i = np.arange(n)
-    cov[:, i, i] = np.clip(var, 1e-9, None).T
-    cov[:, i[1:], i[:-1]] = cov[:, i[:-1], i[1:]] = -r
-    return np.linalg.cholesky(cov), d, valid, var
+    chol, d, var = increment_factors(ramp.reads, mean, shot, r, valid)
+    return chol, d, valid, var
 
 
 def _fit_persistence(model, ramps):
@@ -207,6 +211,38 @@ def fit_ramp_effect(name, model, ramps, ln_n):
     return params, gain - k * ln_n, newer, dark if name == "correlated_read_noise" else None
 
 
+def _trials(model, ramps, data, ln_n, threshold, refused, say):
+    """Every effect not in ``model`` fitted beside it: ``{name: (evidence,
+    params, new model)}`` of those no gate refuses (refusals of candidates
+    above ``threshold`` go into ``refused``, with why)."""
+    duration = float(ramps[0].times[-1])
+    fitted = {}
+    for name in RAMP_EFFECTS:
+        if name in model.effects:
+            continue
+        found = fit_ramp_effect(name, model, ramps, ln_n)
+        if found is not None:
+            params, evidence, newer, extra = found
+            fitted[name] = (evidence, params, newer, ramp_contradiction(name, params, extra)
+                            or ramp_implausible(name, params, data.readnoise, duration))
+    for name in offered(model):
+        params, evidence, newer, _ = fit_frame_effect(name, model, ramps, ln_n)
+        fitted[name] = (evidence, params, newer, contradiction(name, params)
+                        or implausible(name, params, data.readnoise))
+    evidence = {name: f[0] for name, f in fitted.items()}
+    trials = {}
+    for name, (ev, params, newer, why) in fitted.items():
+        why = why or (rival_contradiction(name, evidence, threshold) if ev > threshold
+                      else None)
+        say(f"candidate {name}: delta BIC {ev:.1f} {params}" + (f" ({why})" if why else ""))
+        if why:
+            if ev > threshold:
+                refused[name] = why
+            continue
+        trials[name] = (ev, params, newer)
+    return trials
+
+
 def _verdict(stats):
     return {key: stats[key] for key in ("gap", "gap_floor", "gap_floor_sigma", "complete")}
 
@@ -238,25 +274,8 @@ def discover_ramps(data, seed=0, n_sim=8, threshold=THRESHOLD, max_steps=3, star
     stats = ramp_gap(data, model, n_sim, seed)
     baseline, steps, refused = stats["gap"], [], {}
     ln_n = math.log(sum(r.valid.sum() * len(r.times) for r in ramps))
-    duration = float(ramps[0].times[-1])
     while not stats["complete"] and len(steps) < max_steps:
-        trials = {}
-        for name in RAMP_EFFECTS:
-            if name in model.effects:
-                continue
-            fitted = fit_ramp_effect(name, model, ramps, ln_n)
-            if fitted is None:
-                continue
-            params, evidence, newer, extra = fitted
-            why = ramp_contradiction(name, params, extra) or ramp_implausible(
-                name, params, data.readnoise, duration)
-            say(f"candidate {name}: delta BIC {evidence:.1f} {params}" + (f" ({why})" if why
-                                                                            else ""))
-            if why:
-                if evidence > threshold:
-                    refused[name] = why
-                continue
-            trials[name] = (evidence, params, newer)
+        trials = _trials(model, ramps, data, ln_n, threshold, refused, say)
         best = max(trials, key=lambda n: trials[n][0], default=None)
         if best is None or trials[best][0] <= threshold:
             break

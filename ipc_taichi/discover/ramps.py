@@ -38,10 +38,10 @@ floor simulations reproduce; read noise shared along rows or columns, or
 brighter-fatter's moving boundaries, add to it). The floor is the model
 simulated with fresh noise (:func:`ramp_gap` with ``n_sim``).
 
-What this module does not do yet: it names no effect. The ramp vocabulary
-(``persistence``, ``correlated_read_noise``, ``random_telegraph_noise``) and
-the search over it are not written; :func:`describe_ramp_misfit` says in
-words where the time structure departs from the model.
+This module names no effect: the search over the ramp vocabulary and the
+frame effects read by read is :mod:`.ramp_search` (:mod:`.ramp_effects`,
+:mod:`.ramp_chain`); :func:`describe_ramp_misfit` says in words where the
+time structure departs from the model.
 """
 
 import math
@@ -60,7 +60,8 @@ from .sampling import block_sum
 
 __all__ = ["RampPair", "RampData", "RampModel", "whitened", "read_ramps", "write_ramps",
            "is_ramp_file",
-           "read_times", "expected_reads", "simulate_ramp", "ramp_gap", "describe_ramp_misfit",
+           "read_times", "expected_reads", "expected_mean", "increment_factors", "whiten",
+           "simulate_ramp", "ramp_gap", "describe_ramp_misfit",
            "RAMP_UNEXPLAINED_Z"]
 
 RAMP_UNEXPLAINED_Z = 5.0  # a pattern is described when it stands out at this many sigma
@@ -237,6 +238,19 @@ def _as_ramp_model(model):
     return model if isinstance(model, RampModel) else RampModel(model)
 
 
+def _afterglow_read_out(frame, extra):
+    """What an after-image ``extra`` adds to the reads, to first order."""
+    return frame.readout(extra) - frame.readout(np.zeros_like(extra))
+
+
+def expected_mean(model, ramp, extra=None):
+    """The mean of every read ``(NREADS, ny, nx)`` of :func:`expected_reads`
+    alone (no variance propagated: what a fit of the mean evaluates)."""
+    frame = _as_ramp_model(model).frame
+    mean = frame.expected(_charge_scene(ramp), ramp.oversample)
+    return mean if extra is None else mean + _afterglow_read_out(frame, extra)
+
+
 def expected_reads(model, ramp, extra=None):
     """``(mean, shot variance, read variance)`` of every read (the first two
     ``(NREADS, ny, nx)``): the frame model's prediction of ``SCENE t_i``
@@ -249,7 +263,7 @@ def expected_reads(model, ramp, extra=None):
     mean, var, _ = frame.predict_parts(_charge_scene(ramp), ramp.oversample)
     shot = np.clip(var - frame.read_variance(), 0.0, None)
     if extra is not None:
-        mean = mean + frame.readout(extra) - frame.readout(np.zeros_like(extra))
+        mean = mean + _afterglow_read_out(frame, extra)
         shot = shot + np.clip(extra, 0.0, None)
     return mean, shot, model.read_variance()
 
@@ -277,20 +291,31 @@ def simulate_ramp(model, ramp, rng, extra=None):
     return out
 
 
-def _whitened(reads, mean, shot, r, valid):
-    """Whitened increments ``(NREADS, npix)`` of the valid pixels (module docstring)."""
+def increment_factors(reads, mean, shot, r, valid):
+    """The increments' covariance of the valid pixels (module docstring) as
+    Cholesky factors ``(npix, NREADS, NREADS)``, the residual increments
+    ``(NREADS, npix)`` (measured less expected) and their variances."""
     d = np.diff(reads, axis=0, prepend=0.0)[:, valid]
     mu = np.diff(mean, axis=0, prepend=0.0)[:, valid]
-    s = shot[:, valid]
-    var = np.diff(s, axis=0, prepend=0.0) + 2.0 * r
+    var = np.diff(shot[:, valid], axis=0, prepend=0.0) + 2.0 * r
     var[0] -= r  # read 0 follows the reset, which was removed: one read's noise
     n = len(var)
     cov = np.zeros((d.shape[1], n, n))
     idx = np.arange(n)
     cov[:, idx, idx] = np.clip(var, 1e-9, None).T
     cov[:, idx[1:], idx[:-1]] = cov[:, idx[:-1], idx[1:]] = -r
-    chol = np.linalg.cholesky(cov)
-    return np.linalg.solve(chol, (d - mu).T[..., None])[..., 0].T
+    return np.linalg.cholesky(cov), d - mu, var
+
+
+def whiten(chol, residual):
+    """Residual increments ``(NREADS, npix)`` whitened by ``chol``."""
+    return np.linalg.solve(chol, residual.T[..., None])[..., 0].T
+
+
+def _whitened(reads, mean, shot, r, valid):
+    """Whitened increments ``(NREADS, npix)`` of the valid pixels (module docstring)."""
+    chol, residual, _ = increment_factors(reads, mean, shot, r, valid)
+    return whiten(chol, residual)
 
 
 def _neighbour_products(w, valid):
@@ -351,7 +376,8 @@ def ramp_gap(data, model=None, n_sim=8, seed=0):
 
     Returns a dict: ``gap``, ``gap_per_read``, ``neighbour_correlation``
     (``{"x", "y"}``), and from the simulations ``gap_floor``,
-    ``gap_floor_sigma``, ``gap_per_read_floor`` (mean, scatter),
+    ``gap_floor_sigma`` (at least ``sqrt(2 / n)`` for ``n`` whitened
+    increments), ``gap_per_read_floor`` (mean, scatter),
     ``neighbour_floor`` (``{axis: (mean, scatter)}``) and ``complete`` (the
     gap within 3 floor scatters of the floor); ``unexplained`` from
     :func:`describe_ramp_misfit` when it is not.
@@ -366,7 +392,10 @@ def ramp_gap(data, model=None, n_sim=8, seed=0):
     gaps = np.array([s[0] for s in sims])
     reads = np.array([s[1] for s in sims])
     out = {"gap": gap_now, "gap_per_read": per_read.tolist(), "neighbour_correlation": nb,
-           "gap_floor": float(gaps.mean()), "gap_floor_sigma": float(gaps.std(ddof=1)),
+           "gap_floor": float(gaps.mean()),
+           # a mean of n squared unit normals scatters by at least sqrt(2 / n):
+           # a few simulations can say less by chance
+           "gap_floor_sigma": max(float(gaps.std(ddof=1)), math.sqrt(2.0 / n)),
            "gap_per_read_floor": (reads.mean(axis=0).tolist(), reads.std(axis=0, ddof=1).tolist()),
            # a mean product's scatter is at least that of n independent products
            "neighbour_floor": {a: (float(np.mean([s[2][a] for s in sims])),

@@ -13,6 +13,18 @@ the physics, read by read:
   (linear in it), collected like light.
 - IPC: a constant 3x3 kernel (``alpha`` to each nearest neighbour, zero
   beyond the frame) on the charge present at each read.
+- Brighter-fatter (optional, ``brighter_fatter=(kx, ky)``): the charge is
+  collected in sub-steps; before each, the boundary between two neighbours
+  has moved into the fuller one by ``k Q0 tanh((Q_p - Q_q) / Q0) / 50 ke-``
+  pixels (``Q0`` = 200 ke-, the charge collected so far), and the strip it
+  swept hands the shrinking pixel's light to the other one.
+- Signal-dependent IPC (optional, ``sdipc=g``): the coupling between two
+  neighbours holding ``S`` and ``N`` is ``ALPHA (1 + g (2/pi) arctan(m /
+  25 ke-))`` with ``m = (S + N)/2``, on the charge present at each read
+  (pairwise, so it conserves charge inside the frame).
+- Classical non-linearity (optional, ``nonlinearity=Qs``): each read value
+  ``v`` becomes ``Qs (1 - exp(-v / Qs))`` (an exponential saturation, e-),
+  pixel by pixel after the coupling.
 - Read noise: Gaussian per read and pixel; optionally a row offset per read
   shared by every pixel of a row (correlated read noise, the 1/f picture of a
   readout channel), telegraph pixels whose level jumps between two values
@@ -49,12 +61,63 @@ def _couple(q, alpha):
     return out
 
 
+BF_SUBSTEPS = 6  # collection sub-steps per read with brighter-fatter
+BF_Q0 = 200000.0  # e-: where the boundary shift starts to saturate
+SDIPC_SCALE = 25000.0  # e-
+
+
+def _collect_bf(rate, times, kx, ky, rng):
+    """Charge at each read collected with moving boundaries (module docstring)."""
+    edges = np.concatenate([[0.0], times])
+    q = np.zeros(rate.shape)
+    out = []
+    for i in range(len(times)):
+        dt = (edges[i + 1] - edges[i]) / BF_SUBSTEPS
+        for _ in range(BF_SUBSTEPS):
+            arrive = rate * dt
+            gain = arrive.copy()
+            for axis, k in ((1, kx), (0, ky)):
+                a = [slice(None)] * 2
+                b = [slice(None)] * 2
+                a[axis], b[axis] = slice(None, -1), slice(1, None)
+                a, b = tuple(a), tuple(b)
+                shift = np.clip(k * BF_Q0 * np.tanh((q[a] - q[b]) / BF_Q0) / 50000.0,
+                                -0.25, 0.25)
+                moved = np.where(shift > 0, shift * arrive[a], shift * arrive[b])
+                gain[a] -= moved
+                gain[b] += moved
+            q = q + rng.poisson(np.clip(gain, 0.0, None))
+        out.append(q.copy())
+    return np.array(out)
+
+
+def _couple_sd(q, g, linear=False):
+    """Pairwise coupling by the signal-dependent alpha (module docstring;
+    ``linear``: ``ALPHA (1 + g m / 25 ke-)`` instead, a law outside the
+    paper's family)."""
+    def alpha(s, nb):
+        m = 0.5 * (s + nb) / SDIPC_SCALE
+        return ALPHA * (1.0 + g * (m if linear else (2.0 / np.pi) * np.arctan(m)))
+
+    out = q.copy()
+    pad = np.pad(q, ((0, 0), (1, 1), (1, 1)))
+    ny, nx = q.shape[1:]
+    for dy, dx in ((0, 1), (0, -1), (1, 0), (-1, 0)):
+        nb = pad[:, 1 + dy:1 + dy + ny, 1 + dx:1 + dx + nx]
+        out += alpha(q, nb) * (nb - q)
+    return out
+
+
 def make_ramp(n, nreads, tframe, readnoise, rng, persistence=None, row_noise=0.0,
-              telegraph=None, steps_up=None):
+              telegraph=None, steps_up=None, brighter_fatter=None, sdipc=None,
+              nonlinearity=None, sdipc_linear=False):
     """``(rate, reads)`` of one ramp (module docstring). ``persistence`` is
     ``(A, tau)`` (per second, s), ``row_noise`` the row offsets' RMS (e-),
     ``telegraph`` ``(fraction of pixels, jump in e-)``, ``steps_up`` likewise
-    for one-way steps."""
+    for one-way steps, ``brighter_fatter`` ``(kx, ky)`` (fraction of a
+    pixel's arrivals per boundary at 50 ke- difference), ``sdipc`` ``g``,
+    ``nonlinearity`` ``Qs`` (e-), ``sdipc_linear`` the coupling linear in
+    the pair's mean charge."""
     rate = scene_rate(n, rng)
     times = tframe * np.arange(1, nreads + 1)
     extra = np.zeros((nreads, n, n))
@@ -64,8 +127,15 @@ def make_ramp(n, nreads, tframe, readnoise, rng, persistence=None, row_noise=0.0
         edges = np.concatenate([[0.0], times])
         decay = tau * (np.exp(-edges[:-1] / tau) - np.exp(-edges[1:] / tau))
         extra = amp * earlier[None] * decay[:, None, None]
-    steps = rng.poisson(rate[None] * tframe + extra).astype(np.float64)
-    reads = _couple(np.cumsum(steps, axis=0), ALPHA)
+    if brighter_fatter is not None:
+        charge = _collect_bf(rate, times, *brighter_fatter, rng)
+        if persistence is not None:
+            charge = charge + np.cumsum(rng.poisson(extra), axis=0)
+    else:
+        charge = np.cumsum(rng.poisson(rate[None] * tframe + extra).astype(np.float64), axis=0)
+    reads = _couple(charge, ALPHA) if sdipc is None else _couple_sd(charge, sdipc, sdipc_linear)
+    if nonlinearity is not None:
+        reads = nonlinearity * (1.0 - np.exp(-reads / nonlinearity))
     reads += rng.normal(0.0, readnoise, reads.shape)
     if row_noise:
         reads += rng.normal(0.0, row_noise, (nreads, n, 1))

@@ -1,0 +1,133 @@
+"""The frame effects that ramps tell apart by their time structure:
+``brighter_fatter``, ``signal_dependent_ipc`` and ``classical_nonlinearity``
+fitted to a ramp file's increments, read by read (``docs/discover.md``,
+"Ramps"; the forms are the frame vocabulary's, :mod:`.effects`).
+
+The physical forms, evaluated at every read ``i`` (:func:`~.ramps.expected_mean`)
+---------------------------------------------------------------------------
+- ``brighter_fatter`` acts while collecting: the charge of read ``i`` is
+  ``SCENE t_i`` collected with boundaries moved by the charge already
+  collected (:func:`~.effects.brighter_fatter`, integrated from the reset to
+  ``t_i``), so the flux a pixel keeps falls progressively as it fills and
+  its neighbours' increments rise by what it loses, read after read.
+- ``signal_dependent_ipc`` acts at readout: the coupling of the charge present
+  at read ``i`` by the donlon2018-family law of that charge
+  (:meth:`~.model.DetectorModel.ipc_law`); a read depends on the charge at
+  that read only, and the collected charge itself is untouched.
+- ``classical_nonlinearity`` acts on each pixel's read value after the
+  coupling (:func:`~.effects.nonlinearity`): its own increments shrink as its
+  level grows, and nothing moves to its neighbours.
+
+Fit (:func:`fit_frame_effect`)
+------------------------------
+The effect's strength parameters (:data:`FITTED`; the others at the frame
+vocabulary's starting values) by least squares of the increments whitened
+by the current model's covariance (:func:`~.ramps.increment_factors`), the
+rest of the model fixed; evidence ``delta chi^2 - k ln n``. Its gates are the
+frame vocabulary's (:func:`~.effects.contradiction`,
+:func:`~.effects.implausible`) and, for the two that move charge between
+neighbours, :func:`rival_contradiction`: both are fitted to the same
+increments, and the one whose time structure fits worse by more than the
+evidence threshold is not the effect; when neither is ahead by that much the
+ramps do not tell them apart and neither is named.
+"""
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from ..errors import GeometryError, LawError
+from .effects import EFFECTS
+from .model import is_constant_law
+from .ramps import RampModel, expected_mean, expected_reads, increment_factors, whiten
+
+__all__ = ["FITTED", "RIVALS", "offered", "fit_frame_effect", "rival_contradiction"]
+
+FITTED = {"brighter_fatter": ("deflection_x_at_50ke", "deflection_y_at_50ke", "reach"),
+          "signal_dependent_ipc": ("amp_diff", "amp_level", "alpha_floor"),
+          "classical_nonlinearity": ("deficit_at_50ke",)}
+"""The parameters fitted on ramps, per effect (the others stay at the frame
+vocabulary's starting values: brighter-fatter's boundary-shift picture, no
+cubic term)."""
+
+RIVALS = ("brighter_fatter", "signal_dependent_ipc")
+_FAILED = 1e3  # whitened residual for parameters the engine rejects (a negative alpha)
+
+
+def offered(model):
+    """The frame effects a ramp search may add to ``model`` (a
+    :class:`~.ramps.RampModel`): those not in it; ``signal_dependent_ipc``
+    only on a constant starting law, as for frames."""
+    frame = model.frame
+    return [name for name in FITTED if name not in frame.effects and (
+        name != "signal_dependent_ipc" or is_constant_law(frame.law))]
+
+
+def _parts(model, ramps):
+    """Per ramp: the Cholesky factors of the increments under ``model``, the
+    measured increments of the valid pixels and the valid mask."""
+    parts = []
+    for k, ramp in enumerate(ramps):
+        mean, shot, r = expected_reads(model, ramp, model.afterglow(ramps, k))
+        valid = model.valid(ramp)
+        chol, _, _ = increment_factors(ramp.reads, mean, shot, r, valid)
+        parts.append((chol, np.diff(ramp.reads, axis=0, prepend=0.0)[:, valid], valid))
+    return parts
+
+
+def fit_frame_effect(name, model, ramps, ln_n, max_nfev=40):
+    """``(params, evidence, new model, delta chi^2)`` of frame effect ``name``
+    added to ``model`` and fitted to ``ramps`` (module docstring)."""
+    start = model.frame.starting_params(name)
+    keys = FITTED[name]
+    specs = {p.name: p for p in EFFECTS[name].params}
+    x0 = np.array([start[key] for key in keys], dtype=np.float64)
+    scale = np.array([specs[key].scale for key in keys])
+    lower = np.array([specs[key].lower for key in keys])
+    upper = np.array([specs[key].upper for key in keys])
+    parts = _parts(model, ramps)
+    size = sum(d.size for _, d, _ in parts)
+
+    def newer(x):
+        params = {**start, **{key: float(v) for key, v in zip(keys, x)}}
+        return RampModel(model.frame.with_effects({name: params}), model.effects, model.odd)
+
+    def residual(z):
+        try:
+            trial = newer(x0 + z * scale)
+            out = []
+            for k, (chol, d, valid) in enumerate(parts):
+                mu = expected_mean(trial, ramps[k], trial.afterglow(ramps, k))
+                out.append(whiten(chol, d - np.diff(mu, axis=0, prepend=0.0)[:, valid]).ravel())
+            return np.concatenate(out)
+        except (LawError, GeometryError, ValueError):
+            return np.full(size, _FAILED)
+
+    before = float(np.sum(residual(np.zeros(len(keys))) ** 2))
+    fit = least_squares(residual, np.zeros(len(keys)), bounds=((lower - x0) / scale,
+                                                                (upper - x0) / scale),
+                        diff_step=1e-3, max_nfev=max_nfev, x_scale=1.0)
+    x = x0 + fit.x * scale
+    gain = before - 2.0 * float(fit.cost)
+    best = newer(x)
+    return best.frame.effects[name], gain - len(keys) * ln_n, best, gain
+
+
+def rival_contradiction(name, evidence, threshold):
+    """Why frame effect ``name`` is not the one that moves charge between
+    neighbours, given ``evidence`` (``{name: delta BIC}`` of the effects
+    fitted to the same increments), or ``None``: its rival fits the time
+    structure better by more than ``threshold``, or neither is ahead by that
+    much (the ramps do not tell them apart)."""
+    if name not in RIVALS:
+        return None
+    other = RIVALS[1 - RIVALS.index(name)]
+    if other not in evidence:
+        return None
+    lead = evidence[name] - evidence[other]
+    if lead < -threshold:
+        return (f"{other} fits the increments read by read better (delta BIC "
+                f"{evidence[other]:.1f} against {evidence[name]:.1f})")
+    if lead <= threshold:
+        return (f"the ramps do not tell it from {other} (delta BIC {evidence[name]:.1f} "
+                f"against {evidence[other]:.1f}, under {threshold:g} apart)")
+    return None

@@ -1,0 +1,104 @@
+"""The frame effects on ramps (``ipc_taichi.discover.ramp_chain``): on ramps
+of the independent generator ``tests/independent/ramplab.py`` (NumPy only:
+boundaries moved while collecting, a pairwise coupling growing with the
+pair's mean charge, an exponential saturation of the read value), each
+hidden effect is named alone, at its truth, and closes the gap to its floor;
+brighter-fatter is never named signal-dependent IPC nor the reverse (a
+coupling outside the paper's family, which fits both alike, names neither),
+and a null ramp names nothing. 48x48 pixels x 6 reads of 3 s (45-80 ke- at the
+last read of the patches and hot pixels)."""
+
+import math
+
+import pytest
+
+from ipc_taichi.discover.model import DetectorModel
+from ipc_taichi.discover.ramp_chain import RIVALS, offered, rival_contradiction
+from ipc_taichi.discover.ramp_search import discover_ramps
+from ipc_taichi.discover.ramps import RampModel
+from tests.independent import ramplab
+
+
+def _report(tmp_path, seed, **hidden):
+    path = str(tmp_path / f"chain{seed}.fits")
+    ramplab.make_file(path, n=48, nreads=6, tframe=3.0, seed=seed, **hidden)
+    return discover_ramps(path)
+
+
+def _closed(report):
+    assert report["complete"] is True, report["unexplained"]
+    assert abs(report["final_gap"] - report["gap_floor"]) <= 3 * report["gap_floor_sigma"]
+    assert report["steps"][0]["explained_fraction"] > 0.8
+
+
+def test_null_ramp_names_no_effect(tmp_path):
+    report = _report(tmp_path, 421)
+    assert report["missing_effects"] == [] and report["complete"] is True
+
+
+def test_brighter_fatter_named_not_signal_dependent_ipc(tmp_path):
+    # boundaries moved by 0.015 (x) and 0.012 (y) of a pixel per 50 ke- of
+    # difference: a pixel 50 ke- above its neighbours sends 2 k of its
+    # arrivals across the two boundaries of each direction
+    report = _report(tmp_path, 422, brighter_fatter=(0.015, 0.012))
+    assert report["missing_effects"] == ["brighter_fatter"]
+    _closed(report)
+    p = report["final_model"]["frame"]
+    bf = report["steps"][0]["params"]
+    assert bf["deflection_x_at_50ke"] == pytest.approx(0.030, rel=0.2), p
+    assert bf["deflection_y_at_50ke"] == pytest.approx(0.024, rel=0.2), p
+    assert "better" in report["not_named"]["signal_dependent_ipc"]
+
+
+def test_signal_dependent_ipc_named_not_brighter_fatter(tmp_path):
+    # the generator's coupling of a pixel holding S next to an empty one:
+    # ALPHA (1 + 0.3 (2/pi) arctan(S / 2 / 25 ke-))
+    report = _report(tmp_path, 423, sdipc=0.3)
+    assert report["missing_effects"] == ["signal_dependent_ipc"]
+    _closed(report)
+    assert "brighter_fatter" not in report["missing_effects"]
+    law = DetectorModel("constant:0.0125", 10.0, effects={
+        "signal_dependent_ipc": report["steps"][0]["params"]}).ipc_law()
+    for s in (20000.0, 40000.0):
+        truth = ramplab.ALPHA * (1 + 0.3 * 2 / math.pi * math.atan(0.5 * s / 25000.0))
+        assert float(law.alpha(s, 0.0)) == pytest.approx(truth, rel=0.05)
+
+
+def test_classical_nonlinearity_named_at_its_deficit(tmp_path):
+    qs = 6e5  # the generator's saturation: v -> Qs (1 - exp(-v / Qs))
+    report = _report(tmp_path, 424, nonlinearity=qs)
+    assert report["missing_effects"] == ["classical_nonlinearity"]
+    _closed(report)
+    truth = 1.0 - qs * (1.0 - math.exp(-5e4 / qs)) / 5e4
+    assert report["steps"][0]["params"]["deficit_at_50ke"] == pytest.approx(truth, rel=0.1)
+
+
+def test_coupling_outside_the_family_is_neither_rival(tmp_path):
+    # a coupling growing linearly with the pair's mean charge is, under
+    # constant light, as much a brighter-fatter flow as a donlon2018-family
+    # law: neither is named, the verdict is incomplete and says why
+    report = _report(tmp_path, 425, sdipc=0.1, sdipc_linear=True)
+    assert not set(RIVALS) & set(report["missing_effects"])
+    assert report["complete"] is False
+    assert any("do not tell it from" in u for u in report["unexplained"])
+
+
+def test_rivals_judged_against_each_other():
+    assert set(RIVALS) == {"brighter_fatter", "signal_dependent_ipc"}
+    ev = {"brighter_fatter": 500.0, "signal_dependent_ipc": 420.0}
+    assert rival_contradiction("brighter_fatter", ev, 25.0) is None
+    assert "better" in rival_contradiction("signal_dependent_ipc", ev, 25.0)
+    tie = {"brighter_fatter": 500.0, "signal_dependent_ipc": 490.0}
+    assert all("do not tell" in rival_contradiction(n, tie, 25.0) for n in RIVALS)
+    assert rival_contradiction("brighter_fatter", {"brighter_fatter": 80.0}, 25.0) is None
+    assert rival_contradiction("classical_nonlinearity", ev, 25.0) is None
+
+
+def test_signal_dependent_ipc_offered_on_a_constant_law_only():
+    constant = RampModel(DetectorModel("constant:0.0125", 10.0))
+    assert offered(constant) == ["brighter_fatter", "signal_dependent_ipc",
+                                 "classical_nonlinearity"]
+    paper = RampModel(DetectorModel("donlon2018", 10.0,
+                                    effects={"classical_nonlinearity": {
+                                        "deficit_at_50ke": 0.02, "cubic_term": 0.0}}))
+    assert offered(paper) == ["brighter_fatter"]
