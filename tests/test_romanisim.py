@@ -1,0 +1,146 @@
+"""The romanisim adapter (ipc_taichi.romanisim): romanisim's own ramps, read by read,
+against ``couple`` of the same charge, and a flat's neighbour covariance."""
+
+import numpy as np
+import pytest
+
+import ipc_taichi
+from ipc_taichi.model import CouplingModel
+from tests.helpers import optional
+
+pytest.importorskip("romanisim", reason=optional("romanisim"))
+galsim = pytest.importorskip("galsim", reason=optional("galsim"))
+from romanisim import l1  # noqa: E402
+
+from ipc_taichi import romanisim as ours  # noqa: E402
+
+SEED = 7
+READS = [[1], [2], [3], [4], [5], [6]]  # each read its own resultant
+GROUPED = [[1], [2, 3], [4, 5, 6]]  # the same reads averaged in threes
+
+
+class _Unchanged:
+    """An ipc_model that leaves romanisim's resultants alone (None is its kernel)."""
+
+    def apply(self, img, **kwargs):
+        return None
+
+
+@pytest.fixture
+def scene():
+    """Counts (electrons by the last read): a sky with two stars."""
+    counts = np.random.default_rng(3).poisson(3000.0, (24, 28)).astype(float)
+    counts[8, 9], counts[15, 20] = 60000.0, 150000.0
+    return counts
+
+
+@pytest.fixture
+def model_file(tmp_path):
+    path = tmp_path / "sca01_ipc.json"
+    CouplingModel.resolve("donlon2018").save(path)
+    return str(path)
+
+
+def test_every_resultant_is_couple_of_each_reads_charge(scene, model_file, cpu):
+    """Read charges and reset level from romanisim's own un-coupled runs (same seed);
+    every resultant of the coupled run is the mean over its reads of
+    reset + couple(charge), and the reference read is the reset level bit for bit."""
+    one_by_one = l1.read_pattern_to_tij(READS)
+    # no pedestal: each read is its accumulated charge exactly (integers in float32)
+    charge, _ = l1.apportion_counts_to_resultants(scene, one_by_one, seed=SEED)
+    charge = charge.astype(np.float64)
+    assert np.all(np.diff(charge, axis=0) >= 0) and np.array_equal(charge[-1], scene)
+    levels = dict(pedestal=10000.0, pedestal_extra_noise=8.0, seed=SEED, reference_read=True)
+    stock, _ = l1.apportion_counts_to_resultants(scene, one_by_one, **levels)
+    reset = stock[0].astype(np.float64)
+    assert reset.std() > 4.0  # the pedestal noise is there
+
+    coupled, _ = ours.apportion_counts_to_resultants(
+        scene, l1.read_pattern_to_tij(GROUPED), model=model_file, **levels)
+    assert coupled.shape == (1 + len(GROUPED),) + scene.shape
+    np.testing.assert_array_equal(coupled[0], stock[0])
+    each = reset + ipc_taichi.couple(charge, model=model_file)
+    first = 0
+    for k, reads in enumerate(GROUPED):
+        expect = each[first:first + len(reads)].mean(axis=0)
+        np.testing.assert_allclose(coupled[k + 1], expect, rtol=1e-6, atol=0)
+        mean_charge = charge[first:first + len(reads)].mean(axis=0)
+        # the coupling moved charge (by far more than the tolerance) ...
+        assert np.abs(coupled[k + 1] - reset - mean_charge).max() > 100.0
+        if len(reads) == 3:
+            # ... and read by read: coupling the mean read is not the same
+            of_mean = reset + ipc_taichi.couple(mean_charge, model=model_file)
+            assert np.any(np.abs(of_mean - expect) > 10 * 1e-6 * np.abs(expect))
+        first += len(reads)
+
+
+def test_make_l1_is_the_coupled_resultants_in_dn(scene, cpu):
+    """make_l1 = the coupled resultants / gain, rounded (no read noise); with read noise,
+    the reference read (reset level + read noise) is romanisim's own, bit for bit."""
+    image = galsim.Image(scene)
+    args = dict(pedestal=10000.0, pedestal_extra_noise=8.0, seed=SEED)
+    electrons, _ = ours.apportion_counts_to_resultants(
+        scene, l1.read_pattern_to_tij(GROUPED), **args)
+    dn, dq = ours.make_l1(image, GROUPED, gain=2.0, read_noise=0.0, saturation=1e9, **args)
+    np.testing.assert_array_equal(dn, np.round(electrons / np.float32(2.0)))
+    assert dq.shape == dn.shape and not dq.any()
+
+    noisy = dict(args, gain=2.0, read_noise=5.0, saturation=1e9, reference_read=True)
+    dn, _, reference = ours.make_l1(image, GROUPED, **noisy)
+    stock, _, stock_reference = l1.make_l1(image, GROUPED, ipc_model=_Unchanged(), **noisy)
+    np.testing.assert_array_equal(reference, stock_reference)
+    # the difference is the coupling: about alpha * (star - sky) beside the star
+    beside = (dn - stock)[:, 15, 21] * 2.0
+    assert np.all(beside > 0.006 * (scene[15, 20] - 3000.0) * np.array([1, 2.5, 5]) / 6)
+
+
+def _nearest_neighbour_correlation(frame):
+    """Correlation of x and y nearest neighbours (pooled) away from the frame's edge,
+    and its standard error for independent pixels."""
+    d = frame[2:-2, 2:-2] - frame[2:-2, 2:-2].mean()
+    pairs = (d[:, 1:] * d[:, :-1]).sum() + (d[1:] * d[:-1]).sum()
+    n = d[:, 1:].size + d[1:].size
+    return pairs / n / np.mean(d * d), 1.0 / np.sqrt(n)
+
+
+def test_a_flat_shows_the_coupling_in_its_neighbour_covariance(tmp_path, cpu):
+    """A flat ramp (model file, constant alpha = 0.02): the last-minus-first difference
+    of romanisim's resultants is correlated between nearest neighbours as the kernel
+    [alpha, 1 - 4 alpha, alpha] predicts; without the coupling it is not."""
+    alpha = 0.02
+    path = tmp_path / "flat_ipc.json"
+    CouplingModel.resolve(f"constant:{alpha}").save(path)
+    flat = galsim.Image(np.random.default_rng(5).poisson(40000.0, (192, 192)).astype(float))
+    args = dict(seed=11, gain=2.0, read_noise=0.0, saturation=1e9)
+    dn, _ = ours.make_l1(flat, [[1], [2, 3]], model=str(path), **args)
+    stock, _ = l1.make_l1(flat, [[1], [2, 3]], ipc_model=_Unchanged(), **args)
+
+    rho, error = _nearest_neighbour_correlation(dn[1].astype(float) - dn[0])
+    rho_stock, _ = _nearest_neighbour_correlation(stock[1].astype(float) - stock[0])
+    centre = 1 - 4 * alpha
+    predicted = 2 * alpha * centre / (centre ** 2 + 4 * alpha ** 2)  # 0.0434
+    assert abs(rho_stock) < 4 * error
+    assert abs(rho - predicted) < 4 * error
+    assert rho > 8 * error
+
+
+def test_coupled_context_makes_romanisims_make_l1_ours(scene, model_file, cpu):
+    """Inside ``coupled`` the function romanisim.image.simulate calls couples each read
+    (its ipc_model dropped); afterwards romanisim's own is back."""
+    image = galsim.Image(scene)
+    args = dict(seed=SEED, gain=2.0, read_noise=3.0)
+    stock = l1.make_l1
+    expect, _ = ours.make_l1(image, GROUPED, model=model_file, **args)
+    with ours.coupled(model=model_file):
+        assert l1.make_l1 is not stock
+        inside, _ = l1.make_l1(image, GROUPED, ipc_model=None, **args)
+    assert l1.make_l1 is stock
+    np.testing.assert_array_equal(inside, expect)
+
+
+def test_refusals(scene):
+    with pytest.raises(ipc_taichi.IPCInputError, match="ipc_model"):
+        ours.make_l1(galsim.Image(scene), GROUPED, ipc_model=_Unchanged())
+    hook = ours.ReadCoupling(CouplingModel.resolve("donlon2018"), np.zeros(scene.shape))
+    with pytest.raises(ipc_taichi.IPCInputError, match="electrons"):
+        hook.apply(scene)
