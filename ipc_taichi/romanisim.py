@@ -29,6 +29,8 @@ charges included, so a run with the coupling differs from one without only by it
   ``model``).
 - :func:`coupled`: a context in which ``romanisim.l1.make_l1`` is :func:`make_l1`, so
   that ``romanisim.image.simulate`` (and scripts built on it) make coupled ramps.
+- ``python -m ipc_taichi.romanisim --model FILE romanisim-make-image ARGS...``: one of
+  romanisim's commands (or any script) run inside :func:`coupled` (:func:`main`).
 
 The counts romanisim ramps are the science pixels (its ``make_asdf`` puts them inside
 the 4-pixel reference border): the ``zero`` edge (the default) makes the reference
@@ -36,8 +38,13 @@ pixels zero-signal neighbours, as romanisim's own ``add_ipc`` does (``cval=0``).
 docs/romanisim.md has a worked command.
 """
 
+import argparse
 import contextlib
 import functools
+import os
+import runpy
+import shutil
+import sys
 
 import numpy as np
 
@@ -46,7 +53,7 @@ from .errors import IPCInputError
 from .model import CouplingModel
 
 __all__ = ["ReadCoupling", "reset_level", "apportion_counts_to_resultants", "make_l1",
-           "coupled"]
+           "coupled", "main"]
 
 # apportion_counts_to_resultants seeds its pedestal-noise generator with rng.raw() + 3
 # (romanisim 0.15); tests/test_romanisim.py checks the reset level against romanisim's
@@ -232,3 +239,48 @@ def coupled(law=None, geometry=None, edge=None, *, model=None):
         yield coupling
     finally:
         l1.make_l1 = stock
+
+
+def main(argv=None):
+    """``python -m ipc_taichi.romanisim [--model FILE | --law LAW] [--edge E] COMMAND
+    ARGS...``: romanisim's ``COMMAND`` (``romanisim-make-image``, on the PATH, or a script's
+    path) run with ``ARGS`` inside :func:`coupled`. Returns the exit code (2: bad input)."""
+    parser = argparse.ArgumentParser(
+        prog="python -m ipc_taichi.romanisim",
+        description="Run a romanisim command with signal-dependent IPC: each read's charge "
+                    "coupled by the law (electrons) of --model or --law.")
+    parser.add_argument("--model", metavar="FILE", help="a coupling-model file (JSON)")
+    parser.add_argument("--law", help="the coupling law (default the paper's, donlon2018)")
+    parser.add_argument("--edge", choices=("zero", "isolated"), help="beyond the pixels")
+    parser.add_argument("command", help="romanisim-make-image, or a script's path")
+    parser.add_argument("args", nargs=argparse.REMAINDER, help="the command's arguments")
+    args = parser.parse_args(argv)
+    # romanisim's commands are scripts beside the interpreter (an unactivated venv too)
+    path = args.command if os.path.isfile(args.command) else (
+        shutil.which(args.command) or
+        shutil.which(args.command, path=os.path.dirname(sys.executable)))
+    if path is None:
+        print(f"{parser.prog}: error: command {args.command!r}: not on the PATH and no "
+              "such file", file=sys.stderr)
+        return 2
+    try:
+        coupling = CouplingModel.resolve(args.law, None, args.edge, model=args.model)
+    except (ValueError, OSError) as exc:
+        print(f"{parser.prog}: error: {exc}", file=sys.stderr)
+        return 2
+    saved, sys.argv = sys.argv, [path, *args.args]
+    try:
+        with coupled(model=coupling):
+            runpy.run_path(path, run_name="__main__")
+    except SystemExit as exc:  # the command's own exit, with its code
+        if exc.code is None or isinstance(exc.code, int):
+            return exc.code or 0
+        print(exc.code, file=sys.stderr)
+        return 1
+    finally:
+        sys.argv = saved
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

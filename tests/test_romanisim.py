@@ -138,9 +138,42 @@ def test_coupled_context_makes_romanisims_make_l1_ours(scene, model_file, cpu):
     np.testing.assert_array_equal(inside, expect)
 
 
-def test_refusals(scene):
+SCRIPT = """
+import sys
+import galsim
+import numpy as np
+from romanisim import l1
+counts = galsim.Image(np.load(sys.argv[1]))
+dn, _ = l1.make_l1(counts, [[1], [2, 3], [4, 5, 6]], seed=7, gain=2.0, read_noise=3.0)
+np.save(sys.argv[2], dn)
+"""
+
+
+def test_the_command_runs_a_romanisim_script_coupled(scene, model_file, tmp_path, cpu):
+    """``python -m ipc_taichi.romanisim --model FILE SCRIPT ARGS``: the script's
+    romanisim.l1.make_l1 couples each read (the script's own arguments passed through)."""
+    script = tmp_path / "ramp.py"
+    script.write_text(SCRIPT)
+    np.save(tmp_path / "counts.npy", scene)
+    out = tmp_path / "dn.npy"
+    assert ours.main(["--model", model_file, str(script), str(tmp_path / "counts.npy"),
+                      str(out)]) == 0
+    expect, _ = ours.make_l1(galsim.Image(scene), GROUPED, model=model_file, seed=SEED,
+                             gain=2.0, read_noise=3.0)
+    np.testing.assert_array_equal(np.load(out), expect)
+    assert not hasattr(l1.make_l1, "stock")  # romanisim's own again
+
+
+def test_refusals(scene, tmp_path, capsys):
     with pytest.raises(ipc_taichi.IPCInputError, match="ipc_model"):
         ours.make_l1(galsim.Image(scene), GROUPED, ipc_model=_Unchanged())
     hook = ours.ReadCoupling(CouplingModel.resolve("donlon2018"), np.zeros(scene.shape))
     with pytest.raises(ipc_taichi.IPCInputError, match="electrons"):
         hook.apply(scene)
+    missing = str(tmp_path / "missing.json")
+    assert ours.main(["--model", missing, "romanisim-make-image", "x.asdf"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "missing.json" in err
+    assert ours.main(["--law", "donlon2018", "no-such-romanisim-command"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "no-such-romanisim-command" in err
