@@ -234,11 +234,11 @@ def coupled(law=None, geometry=None, edge=None, *, model=None):
         return make_l1(counts, read_pattern, model=coupling, **kwargs)
 
     patched.stock = stock
-    l1.make_l1 = patched
+    previous, l1.make_l1 = l1.make_l1, patched
     try:
         yield coupling
     finally:
-        l1.make_l1 = stock
+        l1.make_l1 = previous  # an enclosing coupled() keeps its own
 
 
 def main(argv=None):

@@ -134,6 +134,10 @@ def test_coupled_context_makes_romanisims_make_l1_ours(scene, model_file, cpu):
     with ours.coupled(model=model_file):
         assert l1.make_l1 is not stock
         inside, _ = l1.make_l1(image, GROUPED, ipc_model=None, **args)
+        outer = l1.make_l1
+        with ours.coupled(law="constant:0.01"):
+            assert l1.make_l1 not in (stock, outer)
+        assert l1.make_l1 is outer  # an inner context leaves the outer one in place
     assert l1.make_l1 is stock
     np.testing.assert_array_equal(inside, expect)
 
