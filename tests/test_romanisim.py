@@ -41,37 +41,71 @@ def model_file(tmp_path):
     return str(path)
 
 
+LEVELS = dict(pedestal=10000.0, pedestal_extra_noise=8.0, seed=SEED, reference_read=True)
+
+
+def _uncoupled(scene):
+    """Each read's charge and the reset level, from romanisim's own runs (same seed)."""
+    one_by_one = l1.read_pattern_to_tij(READS)
+    # no pedestal: each read is its accumulated charge exactly (integers in float32)
+    charge, _ = l1.apportion_counts_to_resultants(scene, one_by_one, seed=SEED)
+    assert np.all(np.diff(charge, axis=0) >= 0) and np.array_equal(charge[-1], scene)
+    stock, _ = l1.apportion_counts_to_resultants(scene, one_by_one, **LEVELS)
+    assert stock[0].std() > 4.0  # the pedestal noise is there
+    return charge.astype(np.float64), stock[0]
+
+
+def _mean_of_reads(each):
+    """The resultants of GROUPED from a stack of reads (READS)."""
+    ends = np.cumsum([len(reads) for reads in GROUPED])
+    return [each[end - len(reads):end].mean(axis=0) for end, reads in zip(ends, GROUPED)]
+
+
 def test_every_resultant_is_couple_of_each_reads_charge(scene, model_file, cpu):
     """Read charges and reset level from romanisim's own un-coupled runs (same seed);
     every resultant of the coupled run is the mean over its reads of
     reset + couple(charge), and the reference read is the reset level bit for bit."""
-    one_by_one = l1.read_pattern_to_tij(READS)
-    # no pedestal: each read is its accumulated charge exactly (integers in float32)
-    charge, _ = l1.apportion_counts_to_resultants(scene, one_by_one, seed=SEED)
-    charge = charge.astype(np.float64)
-    assert np.all(np.diff(charge, axis=0) >= 0) and np.array_equal(charge[-1], scene)
-    levels = dict(pedestal=10000.0, pedestal_extra_noise=8.0, seed=SEED, reference_read=True)
-    stock, _ = l1.apportion_counts_to_resultants(scene, one_by_one, **levels)
-    reset = stock[0].astype(np.float64)
-    assert reset.std() > 4.0  # the pedestal noise is there
-
+    charge, stock_reset = _uncoupled(scene)
+    reset = stock_reset.astype(np.float64)
     coupled, _ = ours.apportion_counts_to_resultants(
-        scene, l1.read_pattern_to_tij(GROUPED), model=model_file, **levels)
+        scene, l1.read_pattern_to_tij(GROUPED), model=model_file, **LEVELS)
     assert coupled.shape == (1 + len(GROUPED),) + scene.shape
-    np.testing.assert_array_equal(coupled[0], stock[0])
+    np.testing.assert_array_equal(coupled[0], stock_reset)
     each = reset + ipc_taichi.couple(charge, model=model_file)
-    first = 0
-    for k, reads in enumerate(GROUPED):
-        expect = each[first:first + len(reads)].mean(axis=0)
+    for k, (expect, mean_charge) in enumerate(zip(_mean_of_reads(each), _mean_of_reads(charge))):
         np.testing.assert_allclose(coupled[k + 1], expect, rtol=1e-6, atol=0)
-        mean_charge = charge[first:first + len(reads)].mean(axis=0)
         # the coupling moved charge (by far more than the tolerance) ...
         assert np.abs(coupled[k + 1] - reset - mean_charge).max() > 100.0
-        if len(reads) == 3:
+        if len(GROUPED[k]) == 3:
             # ... and read by read: coupling the mean read is not the same
             of_mean = reset + ipc_taichi.couple(mean_charge, model=model_file)
             assert np.any(np.abs(of_mean - expect) > 10 * 1e-6 * np.abs(expect))
-        first += len(reads)
+
+
+def test_romanisims_inverse_linearity_follows_the_coupling(scene, cpu):
+    """With romanisim's own inverse linearity (a quadratic, per-pixel coefficients), each
+    read is the non-linearity of reset + couple(charge); its DQ comes through."""
+    from romanisim.models.nonlinearity import Nonlinearity
+
+    coeffs = np.zeros((3,) + scene.shape)
+    coeffs[1], coeffs[2] = 1.0, -1e-6  # DN: compresses 2 % at 20000 DN
+    coeffs[:, 0, 0] = 0.0  # a pixel with no coefficients: romanisim flags it
+    inv_linearity = Nonlinearity(coeffs=coeffs, getdq=True, gain=2.0)
+    assert inv_linearity.dq[0, 0] and not inv_linearity.dq[1:].any()
+    charge, stock_reset = _uncoupled(scene)
+    reset = stock_reset.astype(np.float64)
+    # romanisim's own reference read went through the inverse linearity too
+    stock, _ = l1.apportion_counts_to_resultants(
+        scene, l1.read_pattern_to_tij(READS), inv_linearity=inv_linearity, **LEVELS)
+    coupled, dq = ours.apportion_counts_to_resultants(
+        scene, l1.read_pattern_to_tij(GROUPED), law="donlon2018",
+        inv_linearity=inv_linearity, **LEVELS)
+    np.testing.assert_array_equal(coupled[0], stock[0])
+    each = inv_linearity.apply(reset + ipc_taichi.couple(charge, law="donlon2018"),
+                               electrons=True)
+    for k, expect in enumerate(_mean_of_reads(each)):
+        np.testing.assert_allclose(coupled[k + 1], expect, rtol=1e-6, atol=0)
+    assert np.all(dq[:, 0, 0]) and not dq[:, 1:].any()
 
 
 def test_make_l1_is_the_coupled_resultants_in_dn(scene, cpu):
