@@ -41,6 +41,7 @@ docs/romanisim.md has a worked command.
 import argparse
 import contextlib
 import functools
+import importlib.util
 import os
 import runpy
 import shutil
@@ -255,6 +256,10 @@ def main(argv=None):
     parser.add_argument("command", help="romanisim-make-image, or a script's path")
     parser.add_argument("args", nargs=argparse.REMAINDER, help="the command's arguments")
     args = parser.parse_args(argv)
+    if importlib.util.find_spec("romanisim") is None:
+        print(f"{parser.prog}: error: romanisim is not installed "
+              "(pip install 'ipc_taichi[romanisim]')", file=sys.stderr)
+        return 2
     # romanisim's commands are scripts beside the interpreter (an unactivated venv too)
     path = args.command if os.path.isfile(args.command) else (
         shutil.which(args.command) or

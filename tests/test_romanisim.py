@@ -161,6 +161,12 @@ def test_a_flat_shows_the_coupling_in_its_neighbour_covariance(tmp_path, cpu):
 def test_coupled_context_makes_romanisims_make_l1_ours(scene, model_file, cpu):
     """Inside ``coupled`` the function romanisim.image.simulate calls couples each read
     (its ipc_model dropped); afterwards romanisim's own is back."""
+    import inspect
+
+    from romanisim import image as romanisim_image
+
+    # simulate looks make_l1 up on romanisim.l1 when called: where coupled replaces it
+    assert "romanisim.l1.make_l1(" in inspect.getsource(romanisim_image.simulate)
     image = galsim.Image(scene)
     args = dict(seed=SEED, gain=2.0, read_noise=3.0)
     stock = l1.make_l1
