@@ -24,7 +24,7 @@ _EXTRA = {"torch": "torch", "roman_datamodels": "ipc_taichi[roman]", "asdf": "ip
           "stpipe": "ipc_taichi[jwst]", "solid_waffle": "solid-waffle",
           "galsim": "galsim", "hypothesis": "hypothesis",
           "dask_jobqueue": "ipc_taichi[hpc]", "pyxel": "ipc_taichi[pyxel]",
-          "romancal": "ipc_taichi[roman-pipeline]"}
+          "romancal": "ipc_taichi[roman-pipeline]", "romanisim": "ipc_taichi[romanisim]"}
 
 
 def optional(module):
