@@ -33,13 +33,18 @@ directory (Taichi's default, ``$XDG_CACHE_HOME/taichi/ticache``, else
 ``~/.cache/taichi/ticache``; ``$TI_OFFLINE_CACHE_FILE_PATH`` moves it), never in
 the working directory, so a fresh process skips the LLVM compile of every kernel
 an earlier one built (Taichi still parses the kernels' Python). ``$TI_OFFLINE_CACHE=0``
-turns it off.
+turns it off. Taichi guards the cache's index with a lock file (``ticache.lock``, created
+exclusively, removed when done); a process killed while it held the lock leaves it
+behind, and every later process then neither loads nor saves a kernel (each run
+recompiles everything: seconds). :func:`init` removes a lock older than
+:data:`STALE_LOCK_S` (held for milliseconds by a live process) before it starts Taichi.
 """
 
 import contextlib
 import io
 import logging
 import os
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -48,12 +53,17 @@ from .errors import ArchUnavailableError
 from .gpus import cuda_present
 
 __all__ = ["RuntimeInfo", "init", "current", "cpu_threads", "positive_env", "ARCH_ENV",
-           "PRECISION_ENV", "THREADS_ENV", "CACHE_ENV"]
+           "PRECISION_ENV", "THREADS_ENV", "CACHE_ENV", "CACHE_PATH_ENV", "CACHE_LOCK",
+           "STALE_LOCK_S", "clear_stale_cache_lock"]
 
 ARCH_ENV = "IPC_TAICHI_ARCH"
 PRECISION_ENV = "IPC_TAICHI_PRECISION"
 THREADS_ENV = "IPC_TAICHI_THREADS"
 CACHE_ENV = "TI_OFFLINE_CACHE"  # Taichi's own switch of its offline cache
+CACHE_PATH_ENV = "TI_OFFLINE_CACHE_FILE_PATH"  # Taichi's own: where the cache lives
+CACHE_LOCK = "ticache.lock"  # Taichi's lock of the cache's index, in that directory
+#: seconds after which Taichi's cache lock is taken for one a killed process left
+STALE_LOCK_S = 120.0
 _ARCHES = ("auto", "cpu", "cuda")
 _PRECISIONS = ("f64", "f32")
 
@@ -124,6 +134,23 @@ def positive_env(name):
     return value
 
 
+def clear_stale_cache_lock(cache_dir, now=None):
+    """Remove Taichi's offline-cache lock in ``cache_dir`` when it is older than
+    :data:`STALE_LOCK_S` seconds (a process killed while holding it left it:
+    Taichi would neither load nor save a kernel while it is there). Returns
+    whether a lock was removed; a young lock, or none, is left alone."""
+    lock = os.path.join(cache_dir, CACHE_LOCK)
+    try:
+        age = (time.time() if now is None else now) - os.stat(lock).st_mtime
+        if age <= STALE_LOCK_S:
+            return False
+        os.remove(lock)
+    except OSError:  # none, or another process removed it first
+        return False
+    log.info("removed a stale Taichi cache lock (%.0f s old): %s", age, lock)
+    return True
+
+
 def on_reset(hook):
     """Register ``hook()`` to run whenever the runtime is (re)initialised.
 
@@ -191,6 +218,8 @@ def init(arch=None, precision=None):
         common["cpu_max_num_threads"] = threads
     if CACHE_ENV not in os.environ:  # said, not left to Taichi's default; the user may say 0
         common["offline_cache"] = True
+    clear_stale_cache_lock(os.environ.get(CACHE_PATH_ENV)
+                           or ti.lang.impl.default_cfg().offline_cache_file_path)
     # ti.init prints "Starting on arch=..." unconditionally; keep stdout clean
     # for command-line output (the arch is reported by RuntimeInfo instead)
     with contextlib.redirect_stdout(io.StringIO()):
