@@ -71,3 +71,28 @@ def test_init_clears_a_stale_lock_in_taichis_cache(tmp_path):
                        capture_output=True, text=True, env=env, timeout=120)
     assert r.returncode == 0, r.stderr
     assert not lock.exists()
+
+
+def test_light_source_positions_only_for_this_packages_kernels(cpu):
+    """The parse of a kernel in this package says file, line, function and the
+    source line; any other kernel keeps Taichi's message with its carets."""
+    import ast
+    import types
+
+    from taichi.lang.ast.ast_transformer_utils import ASTTransformerContext
+
+    runtime.light_source_positions()  # idempotent: init did it already
+    patched = ASTTransformerContext.get_pos_info
+    assert patched.taichi_get_pos_info is not patched  # Taichi's own kept, once
+    runtime.light_source_positions()
+    assert ASTTransformerContext.get_pos_info is patched
+    src = ["def step(x):", "    return x + 1.0"]
+    node = ast.parse("\n".join(src)).body[0].body[0]
+    ours = runtime.__file__.replace("runtime.py", "_kernels.py")
+    for path, carets in ((ours, False), ("/elsewhere/user_kernels.py", True)):
+        ctx = types.SimpleNamespace(file=path, lineno_offset=10, src=src, indent=0,
+                                    func=types.SimpleNamespace(func=types.SimpleNamespace(
+                                        __name__="step")))
+        info = patched(ctx, node)
+        assert info.startswith(f'File "{path}", line 12, in step:\n    return x + 1.0\n')
+        assert ("^" in info) == carets
