@@ -269,6 +269,8 @@ def test_startup_rows_measure_fresh_processes_and_the_summary_line():
     (ratio,) = section["ratios"][16]  # one interleaved pair: its own ratio
     assert ratio == decouple_row["median [s]"] / python_row["median [s]"]
     assert decouple_row["x fresh Python"] == f"{ratio:.2f}x" and TARGET_RATIO == 2.0
+    cpu_ratio = decouple_row["CPU median [s]"] / python_row["CPU median [s]"]
+    assert decouple_row["CPU x fresh Python"] == f"{cpu_ratio:.2f}x"
     assert section["summary_line_ok"]
     assert any(n.startswith("Summary line: 1 on stderr, `ipc-taichi: decoupled $TMP/in16.fits")
                and n.endswith("with --quiet 0 lines") for n in section["notes"])

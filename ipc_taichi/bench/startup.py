@@ -67,17 +67,20 @@ def run_fresh(argv):
     return seconds, _children_cpu() - cpu, proc
 
 
-def _row(command, what, runs, target=None, ratios=None):
-    """A table row from ``runs`` = [(wall, cpu), ...]."""
+def _row(command, what, runs, target=None, ratios=None, baseline=None):
+    """A table row from ``runs`` = [(wall, cpu), ...]; a decouple's ``ratios`` (wall,
+    interleaved pairs) and ``baseline`` (its fresh Python's runs) give its ratios."""
     walls = [w for w, _ in runs]
     median = statistics.median(walls)
+    cpu = statistics.median(c for _, c in runs)
     row = {"command": command, "what": what, "median [s]": median, "min [s]": min(walls),
-           "max [s]": max(walls), "CPU median [s]": statistics.median(c for _, c in runs),
-           "x fresh Python": "", "target [s]": "" if target is None else target,
+           "max [s]": max(walls), "CPU median [s]": cpu, "x fresh Python": "",
+           "CPU x fresh Python": "", "target [s]": "" if target is None else target,
            "met": "" if target is None else ("yes" if median < target else "no")}
     if ratios:
         ratio = statistics.median(ratios)
         row["x fresh Python"] = f"{ratio:.2f}x"
+        row["CPU x fresh Python"] = f"{cpu / statistics.median(c for _, c in baseline):.2f}x"
         if target is not None:
             row["x fresh Python"] += (f" (target <= {TARGET_RATIO:g}x: "
                                       f"{'met' if ratio <= TARGET_RATIO else 'NOT met'})")
@@ -135,11 +138,13 @@ def measure_startup(repeats=5, sizes=STARTUP_SIZES):
         rows += [_row(f"fresh Python: numpy + astropy.io.fits, read the file ({n}x{n})",
                       "python", runs["python", n]),
                  _row(f"ipc-taichi decouple ({n}x{n}, arch {arch})", "decouple",
-                      runs["decouple", n], target, ratios[n])]
+                      runs["decouple", n], target, ratios[n], runs["python", n])]
     notes = [f"Wall time of a fresh process (`python -m ipc_taichi.cli`, what the `ipc-taichi` "
              f"script runs), median of {repeats}, the runs interleaved; CPU: user + system "
              f"seconds of the process; x fresh Python: median of the interleaved pairs' "
-             f"ratios. Load average at start {', '.join(f'{v:.2f}' for v in load)}, at end "
+             f"ratios of wall time; CPU x fresh Python: ratio of the CPU medians (the steadier "
+             f"one on a loaded machine). Load average at start "
+             f"{', '.join(f'{v:.2f}' for v in load)}, at end "
              f"{', '.join(f'{v:.2f}' for v in os.getloadavg())} on {os.cpu_count()} cores.",
              summary]
     return {"title": "Start-up (issue 27: --help under 1 s; issue 39: a 64x64 decouple under "
