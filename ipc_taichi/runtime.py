@@ -70,7 +70,7 @@ _ARCHES = ("auto", "cpu", "cuda")
 _PRECISIONS = ("f64", "f32")
 
 log = logging.getLogger("ipc_taichi")
-_PACKAGE_DIR = os.path.dirname(os.path.abspath(__file__))
+_PACKAGE_DIR = os.path.dirname(os.path.abspath(__file__)) + os.sep
 
 
 @dataclass(frozen=True)
@@ -179,8 +179,12 @@ def light_source_positions():
     if full is None or hasattr(full, "taichi_get_pos_info") or tuple(ti.__version__[:2]) != (1, 7):
         return
 
+    ours = {}  # source file -> in this package
+
     def get_pos_info(self, node):
-        if not str(self.file).startswith(_PACKAGE_DIR):
+        if self.file not in ours:
+            ours[self.file] = os.path.abspath(str(self.file)).startswith(_PACKAGE_DIR)
+        if not ours[self.file]:
             return full(self, node)
         return (f'File "{self.file}", line {node.lineno + self.lineno_offset}, in '
                 f"{self.func.func.__name__}:\n{self.src[node.lineno - 1]}\n")

@@ -89,7 +89,8 @@ def test_light_source_positions_only_for_this_packages_kernels(cpu):
     src = ["def step(x):", "    return x + 1.0"]
     node = ast.parse("\n".join(src)).body[0].body[0]
     ours = runtime.__file__.replace("runtime.py", "_kernels.py")
-    for path, carets in ((ours, False), ("/elsewhere/user_kernels.py", True)):
+    beside = runtime.__file__.replace("runtime.py", "").rstrip("/\\") + "_plugin/kernels.py"
+    for path, carets in ((ours, False), ("/elsewhere/user_kernels.py", True), (beside, True)):
         ctx = types.SimpleNamespace(file=path, lineno_offset=10, src=src, indent=0,
                                     func=types.SimpleNamespace(func=types.SimpleNamespace(
                                         __name__="step")))
