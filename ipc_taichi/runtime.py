@@ -33,13 +33,20 @@ directory (Taichi's default, ``$XDG_CACHE_HOME/taichi/ticache``, else
 ``~/.cache/taichi/ticache``; ``$TI_OFFLINE_CACHE_FILE_PATH`` moves it), never in
 the working directory, so a fresh process skips the LLVM compile of every kernel
 an earlier one built (Taichi still parses the kernels' Python). ``$TI_OFFLINE_CACHE=0``
-turns it off.
+turns it off. Taichi guards the cache's index with a lock file (``ticache.lock``, created
+exclusively, removed when done); a process killed while it held the lock leaves it
+behind, and every later process then neither loads nor saves a kernel (each run
+recompiles everything: seconds). :func:`init` removes a lock older than
+:data:`STALE_LOCK_S` (held for milliseconds by a live process) before it starts Taichi,
+and makes Taichi's parse of this package's kernels skip the error-message art it
+formats for every node (:func:`light_source_positions`).
 """
 
 import contextlib
 import io
 import logging
 import os
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -48,16 +55,22 @@ from .errors import ArchUnavailableError
 from .gpus import cuda_present
 
 __all__ = ["RuntimeInfo", "init", "current", "cpu_threads", "positive_env", "ARCH_ENV",
-           "PRECISION_ENV", "THREADS_ENV", "CACHE_ENV"]
+           "PRECISION_ENV", "THREADS_ENV", "CACHE_ENV", "CACHE_PATH_ENV", "CACHE_LOCK",
+           "STALE_LOCK_S", "clear_stale_cache_lock", "light_source_positions"]
 
 ARCH_ENV = "IPC_TAICHI_ARCH"
 PRECISION_ENV = "IPC_TAICHI_PRECISION"
 THREADS_ENV = "IPC_TAICHI_THREADS"
 CACHE_ENV = "TI_OFFLINE_CACHE"  # Taichi's own switch of its offline cache
+CACHE_PATH_ENV = "TI_OFFLINE_CACHE_FILE_PATH"  # Taichi's own: where the cache lives
+CACHE_LOCK = "ticache.lock"  # Taichi's lock of the cache's index, in that directory
+#: seconds after which Taichi's cache lock is taken for one a killed process left
+STALE_LOCK_S = 120.0
 _ARCHES = ("auto", "cpu", "cuda")
 _PRECISIONS = ("f64", "f32")
 
 log = logging.getLogger("ipc_taichi")
+_PACKAGE_DIR = os.path.dirname(os.path.abspath(__file__)) + os.sep
 
 
 @dataclass(frozen=True)
@@ -124,6 +137,62 @@ def positive_env(name):
     return value
 
 
+def clear_stale_cache_lock(cache_dir, now=None):
+    """Remove Taichi's offline-cache lock in ``cache_dir`` when it is older than
+    :data:`STALE_LOCK_S` seconds (a process killed while holding it left it:
+    Taichi would neither load nor save a kernel while it is there). Returns
+    whether a lock was removed; a young lock, or none, is left alone."""
+    lock = os.path.join(cache_dir, CACHE_LOCK)
+    try:
+        age = (time.time() if now is None else now) - os.stat(lock).st_mtime
+        if age <= STALE_LOCK_S:
+            return False
+        os.remove(lock)
+    except OSError:  # none, or another process removed it first
+        return False
+    log.info("removed a stale Taichi cache lock (%.0f s old): %s", age, lock)
+    return True
+
+
+def light_source_positions():
+    """Make Taichi's parse of this package's kernels skip its error-message art.
+
+    Taichi 1.7 re-parses a kernel's Python in every process (the offline cache
+    key is computed from what the parse builds) and, for every node of it,
+    formats the message it would print were that node to fail: the source
+    lines wrapped to 80 columns under a line of carets. For the step kernel that
+    is a third of the parse (0.1-0.2 s of each process's start on a 2-core
+    machine). For kernels whose source lies in this package the position is
+    ``File, line, function`` and the source line, without the carets; the
+    kernel Taichi builds, its offline-cache key and its results are the same.
+    Every other kernel (a user's own, in the same process) keeps Taichi's
+    message; a Taichi whose parser differs is left alone. Idempotent; called
+    by :func:`init`.
+    """
+    import taichi as ti
+
+    try:
+        from taichi.lang.ast.ast_transformer_utils import ASTTransformerContext as context
+    except ImportError:
+        return
+    full = getattr(context, "get_pos_info", None)
+    if full is None or hasattr(full, "taichi_get_pos_info") or tuple(ti.__version__[:2]) != (1, 7):
+        return
+
+    ours = {}  # source file -> in this package
+
+    def get_pos_info(self, node):
+        if self.file not in ours:
+            ours[self.file] = os.path.abspath(str(self.file)).startswith(_PACKAGE_DIR)
+        if not ours[self.file]:
+            return full(self, node)
+        return (f'File "{self.file}", line {node.lineno + self.lineno_offset}, in '
+                f"{self.func.func.__name__}:\n{self.src[node.lineno - 1]}\n")
+
+    get_pos_info.taichi_get_pos_info = full
+    context.get_pos_info = get_pos_info
+
+
 def on_reset(hook):
     """Register ``hook()`` to run whenever the runtime is (re)initialised.
 
@@ -173,6 +242,7 @@ def init(arch=None, precision=None):
     os.environ.setdefault("TI_LOG_LEVEL", "error")
     import taichi as ti
 
+    light_source_positions()
     if _current is not None:
         ti.reset()
     for hook in _reset_hooks:
@@ -191,6 +261,8 @@ def init(arch=None, precision=None):
         common["cpu_max_num_threads"] = threads
     if CACHE_ENV not in os.environ:  # said, not left to Taichi's default; the user may say 0
         common["offline_cache"] = True
+    clear_stale_cache_lock(os.environ.get(CACHE_PATH_ENV)
+                           or ti.lang.impl.default_cfg().offline_cache_file_path)
     # ti.init prints "Starting on arch=..." unconditionally; keep stdout clean
     # for command-line output (the arch is reported by RuntimeInfo instead)
     with contextlib.redirect_stdout(io.StringIO()):

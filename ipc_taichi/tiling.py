@@ -38,7 +38,6 @@ import math
 import sys
 
 import numpy as np
-from tqdm import tqdm
 
 from . import iteration, runtime
 from .decoupling import DecoupleInfo, decouple
@@ -200,6 +199,8 @@ def _progress_bar(progress, total):
     """A tqdm bar on stderr when asked for and stderr is a terminal."""
     if not progress or total <= 1 or not sys.stderr.isatty():
         return None
+    from tqdm import tqdm  # here: a run without a bar does not load it (tqdm: ~20 ms)
+
     return tqdm(total=total, unit="tile", desc="decouple", file=sys.stderr, leave=False)
 
 

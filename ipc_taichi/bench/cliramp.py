@@ -27,10 +27,7 @@ frame) the border is named with ``--refpix 4``.
 
 import inspect
 import os
-import resource
 import statistics
-import subprocess
-import sys
 import tempfile
 import time
 
@@ -43,6 +40,7 @@ from .. import iteration
 from ..datasets import star_field
 from ..fitsio import atomic_output
 from ..products.fitsfile import open_fits, read_array, science_header, write_skeleton
+from .startup import run_fresh
 
 __all__ = ["measure_cliramp", "write_ramp_fits", "copy_through_cli_io", "compare_outputs",
            "IO_IMPORTS", "CLIRAMP_SIZE", "CLIRAMP_GROUPS", "CLIRAMP_LAW", "TARGET_RATIO"]
@@ -114,25 +112,6 @@ def copy_through_cli_io(input_path, output_path, index=1):
                 del out
 
 
-def _children_cpu():
-    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return usage.ru_utime + usage.ru_stime
-
-
-def _timed(argv):
-    """``python ARGV`` in a fresh process: ``(wall seconds, CPU seconds)`` (an
-    error: RuntimeError with its last line)."""
-    cpu = _children_cpu()
-    start = time.perf_counter()
-    proc = subprocess.run([sys.executable, *argv], capture_output=True, text=True,
-                          env=dict(os.environ, ENABLE_TAICHI_HEADER_PRINT="False"))
-    seconds = time.perf_counter() - start
-    if proc.returncode != 0:
-        tail = (proc.stderr.strip().splitlines() or ["no output"])[-1]
-        raise RuntimeError(f"{' '.join(argv[:3])}: exit {proc.returncode}: {tail}")
-    return seconds, _children_cpu() - cpu
-
-
 def _commands(src, out, refpix):
     """``name -> python argv`` of the three runs, (a), (b), (c)."""
     cli = ["-m", "ipc_taichi.cli", "decouple", src, out["b"], "--law", CLIRAMP_LAW, "--quiet",
@@ -168,7 +147,7 @@ def _warm_up(work, refpix):
     write_ramp_fits(small, 64, 3)
     outs = {k: os.path.join(work, f"warmup-{k}.fits") for k in "abc"}
     for k in "bc":
-        _timed(_commands(small, outs, BORDER)[k])
+        run_fresh(_commands(small, outs, BORDER)[k])
 
 
 def _rows(times, cpu, heads, refpix):
@@ -231,7 +210,7 @@ def measure_cliramp(size=CLIRAMP_SIZE, groups=CLIRAMP_GROUPS, repeats=3, workdir
         times, cpu = {k: [] for k in "abc"}, {k: [] for k in "abc"}
         for _ in range(repeats):
             for k in "abc":
-                wall, used = _timed(commands[k])
+                wall, used = run_fresh(commands[k])[:2]
                 times[k].append(wall)
                 cpu[k].append(used)
         diffs, scales, heads = compare_outputs(outs["c"], outs["b"])

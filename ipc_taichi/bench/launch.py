@@ -264,7 +264,8 @@ def _measure_sections(info, repeats, progress, notes, cuda_size, stack, pipeline
     progress("  a bond map against the uniform law, per iteration, 2048x2048")
     found["bondmap"] = _launch({"config": "bondmap", "size": 2048, "repeats": 7},
                                "The bond-map row", notes)
-    progress("  start-up: ipc-taichi --help and a 64x64 decouple, fresh processes")
+    progress("  start-up: ipc-taichi --help, a 64x64 and a 2048x2048 decouple beside a fresh "
+             "Python reading the file, fresh processes")
     try:
         found["startup"] = measure_startup(repeats)
     except RuntimeError as exc:
