@@ -196,6 +196,8 @@ def ipc_report(full, errors):
 
 
 def nonlinearity_report(full, jack, errors, integration_betas):
+    """Classical non-linearity ``beta`` with its error: the larger of the jackknife
+    (``errors``) and the scatter of ``integration_betas`` (or None)."""
     err = errors("beta")
     if integration_betas is not None and err is not None:
         n = integration_betas.size
@@ -209,6 +211,8 @@ def nonlinearity_report(full, jack, errors, integration_betas):
 
 
 def nonlinear_ipc_report(full, jack, nints):
+    """Non-linear IPC: the slope of the nearest terms ``x + y`` per 10 ke-, its
+    jackknife error over the fits ``jack`` and whether it is detected."""
     value = float(full["k1"][0] + full["k1"][1]) * 1e4
     err = None
     if len(jack) >= 3:
@@ -223,6 +227,8 @@ def nonlinear_ipc_report(full, jack, nints):
 
 
 def bf_report(full, jack, nints):
+    """Brighter-fatter: its kernel with jackknife errors, the significance of the
+    nearest terms and the chi^2 of the kernel (not measured with one integration)."""
     if nints < 2:
         return {"measured": False, "detected": False, "significance": None, "kernel": None,
                 "kernel_error": None,
@@ -265,6 +271,7 @@ def public_params(p, n_groups):
 
 
 def internal_params(params):
+    """The fit parameters of :func:`public_params`' plain numbers (arrays again)."""
     return {"current": params["current"], "beta": params["beta"], "r": params["gain_ratio"],
             "s2": params["read_noise_variance"],
             "k0": np.array([params["k0"][t] for t in TERMS]),
@@ -276,6 +283,7 @@ def internal_params(params):
 
 # ---------------------------------------------------------------------- levels
 def level_note(nints, given):
+    """The sentence saying what was removed from the per-level points."""
     if nints < 2:
         return ("one integration: brighter-fatter not measured and not told from the fixed "
                 "pattern; their common term, fitted from the pairs of different increments, "

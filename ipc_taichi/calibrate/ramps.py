@@ -124,7 +124,7 @@ class FlatRamps:
         self.notes = list(notes)
         self.collection_steps = None if not collection_steps else int(collection_steps)
         current, _ = mean_ramp(self._increments.sum(axis=(0, 1)),
-                                self._pixels.sum() * self.n_integrations)
+                               self._pixels.sum() * self.n_integrations)
         self.current = float(current)
         self._cache = {}
 
