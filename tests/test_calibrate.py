@@ -209,7 +209,9 @@ def test_darks_and_flats_of_different_shapes_are_each_measured(cpu, tmp_path, sm
     measured on its own frame (the report records every input's shape)."""
     frames = np.array([ipcgen.couple(rng.poisson(5000.0, (64, 64)).astype(float), "constant")
                        for _ in range(4)])
-    flat = write_sci(tmp_path / "f.fits", frames)
+    # in DN like the dark: the gain given is for every input, and a gain given for
+    # data in electrons is refused (the product plan's rule)
+    flat = write_sci(tmp_path / "f.fits", frames / 2.0, bunit="DN")
     res = calibrate([small_dark], [flat], gain=2.0, read_noise=0.0)
     shapes = {item["role"]: item["shape"][-2:] for item in res["report"]["inputs"]}
     assert shapes == {"dark": [96, 96], "flat": [64, 64]}

@@ -150,25 +150,53 @@ def test_no_bunit_and_no_gain_is_electrons_said(tmp_path, rng):
     np.testing.assert_allclose(f.data[0], data.astype(np.float32))
 
 
-def test_gain_given_for_electrons_is_unused_and_said(tmp_path, rng):
+def _refusals(path, tmp_path, **options):
+    """The one-line refusals of calibrate's reader, of calibrate and of decouple
+    for the same file and options."""
+    said = []
+    for run in (lambda: read_frames(path, **options),
+                lambda: calibrate(darks=[path], **options),
+                lambda: process_fits(path, str(tmp_path / "out.fits"), **options)):
+        with pytest.raises(IPCInputError) as refused:
+            run()
+        said.append(str(refused.value))
+    return said
+
+
+def test_gain_given_for_electrons_is_refused_as_decouple_refuses_it(tmp_path, rng):
+    """One rule, the product plan's: a gain given for data in electrons (the
+    file's BUNIT, or --bunit) is refused by calibrate and decouple alike."""
     data = rng.normal(1000, 10, (2, NY, NX))
-    f = read_frames(_write(tmp_path / "el.fits", data, bunit="electron"), gain=1.5)
-    assert f.meta["units_note"] == "BUNIT 'electron': electrons; the gain given " \
-                                   "(1.5 e-/DN) is unused"
-    assert f.meta["gain"] is None
+    path = _write(tmp_path / "el.fits", data, bunit="electron")
+    said = _refusals(path, tmp_path, gain=1.5)
+    assert said[0] == said[1] == said[2]
+    assert said[0] == (f"{path}[SCI]: a gain was given but the data are in electron; give "
+                       "--bunit DN or DN/s if they are not")
+    dn = _write(tmp_path / "dn.fits", data, bunit="DN")
+    said = _refusals(dn, tmp_path, gain=2.0, bunit="electron")
+    assert said[0] == said[1] == said[2] and "a gain was given" in said[0]
+    assert not (tmp_path / "out.fits").exists()
+    # without a gain the same file is read, in electrons
+    f = read_frames(path)
+    assert f.meta["units_note"] == "BUNIT 'electron': electrons" and f.meta["gain"] is None
     np.testing.assert_allclose(f.data[0], data.astype(np.float32))
 
 
-def test_bunit_overrides_the_file(tmp_path, rng):
+def test_gain_image_and_keyword_read_as_decouple_reads_them(tmp_path, rng):
+    """A gain image's unusable pixels are left out (decouple's masked-pixel
+    rule), and a GAIN keyword that is not a number is blamed on the keyword."""
     data = rng.normal(1000, 10, (2, NY, NX))
-    path = _write(tmp_path / "o.fits", data, bunit="electron")
-    f = read_frames(path, gain=2.0, bunit="DN")
-    assert f.meta["units_note"] == "bunit 'DN': DN converted with gain 2 e-/DN given"
-    np.testing.assert_allclose(f.data[0], 2.0 * data.astype(np.float32))
-    dn = _write(tmp_path / "o2.fits", data, bunit="DN")
-    e = read_frames(dn, gain=2.0, bunit="electron")
-    assert e.meta["units_note"].startswith("bunit 'electron': electrons; the gain given")
-    np.testing.assert_allclose(e.data[0], data.astype(np.float32))
+    gain = np.full((NY, NX), 2.0)
+    gain[5, 7] = 0.0
+    image = tmp_path / "gain.fits"
+    fits.writeto(image, gain)
+    f = read_frames(_write(tmp_path / "g.fits", data, bunit="DN"), gain=str(image))
+    assert f.mask[0, :, 5, 7].all() and np.isnan(f.data[0, :, 5, 7]).all()
+    assert f.mask[0, :, 5, 8].sum() == 0 and f.meta["gain"] == 2.0
+    bad = _write(tmp_path / "k.fits", data, bunit="DN", sci_keys={"GAIN": "abc"})
+    with pytest.raises(IPCInputError, match=r"k\.fits\[SCI\]: header GAIN = 'abc' is not a "
+                                            "number"):
+        read_frames(bad)
 
 
 def test_dn_without_any_gain_and_rates_are_refused(tmp_path, rng):

@@ -9,7 +9,7 @@ coupling kernel, a quadratic non-linearity, a bias and read noise.
 import numpy as np
 import pytest
 
-from ipc_taichi.calibrate import ramps
+from ipc_taichi.calibrate import rampmodel, ramps
 from ipc_taichi.calibrate.flats import TERMS, kernel_autocorrelation
 from ipc_taichi.calibrate.ramps import SYMMETRIC_LAGS, FlatRamps
 
@@ -127,7 +127,7 @@ def test_constant_ipc_without_brighter_fatter_is_exact():
     for -sigma^2 between neighbours in time) and C_kk = (I/r) K*K + 2 sigma^2."""
     k0 = np.array([0.011, 0.013, 0.001, 0.0004, 0.0002])
     current, r, s2 = 1500.0, 1.2, 40.0
-    model = ramps._Model(7, current, 0.0)
+    model = rampmodel.RampCovariance(7, current, 0.0)
     cov = model.increments(_params(r=r, s2=s2, k0=k0))
     for c, lag in enumerate(SYMMETRIC_LAGS):
         same = current / r * kernel_autocorrelation(k0, lag) + (2 * s2 if c == 0 else 0.0)
@@ -157,7 +157,7 @@ def test_model_equals_real_space_linear_response(steps):
     k1 = np.array([2e-7, 1e-7, 3e-8, 0.0, -1e-8])
     a = 3 * ramps.symmetric_from_kernel(BF)
     p = _params(r=r, s2=s2, k0=k0, k1=k1, a=a)
-    got = ramps._Model(groups, current, beta, steps).increments(p)
+    got = rampmodel.RampCovariance(groups, current, beta, steps).increments(p)
 
     growth = r * current * _convolution_matrix(ramps.kernel_from_symmetric(a), n)
     lam, vec = np.linalg.eigh(growth)
@@ -195,7 +195,7 @@ def test_brighter_fatter_adds_kka_to_every_pair():
     k0 = np.array([0.01, 0.01, 0.0, 0.0, 0.0])
     a = 0.01 * ramps.symmetric_from_kernel(BF)  # weak: first order holds
     current = 2000.0
-    model = ramps._Model(6, current, 0.0)
+    model = rampmodel.RampCovariance(6, current, 0.0)
     with_bf = model.increments(_params(k0=k0, a=a))
     without = model.increments(_params(k0=k0))
     K = ramps.kernel_from_symmetric([0.0, *k0, 0, 0, 0])

@@ -28,12 +28,16 @@ numbers became electrons.
   test unless the JWST keywords confirm a ramp (``NGROUPS`` equal to the
   number of reads): for hot pixels the difference does not matter.
 
-**Units and gain** (:func:`charge_units`): ``bunit`` overrides BUNIT (as
-``decouple --bunit``); BUNIT present: as for ``decouple`` (DN need a gain,
-given or the GAIN keyword; rates are refused: calibrate needs accumulated
-charge); BUNIT absent: DN when a gain is given or the file has a GAIN
-keyword, electrons otherwise. A gain given for data in electrons is unused.
-Each case is said in ``meta["units_note"]``; never silent.
+**Units, gain, layout and DQ** (:func:`plan_charge`): decided by the product
+plan, as for ``decouple`` (:func:`ipc_taichi.products.plan.plan_array`:
+``bunit`` overrides BUNIT; DN need a gain, given or the GAIN keyword; a gain
+given for data in electrons is refused, in the same words), the pixels left
+out by :func:`ipc_taichi.products.conventions.untrusted` with the bits of
+:func:`ipc_taichi.products.plan.dq_bits_of`. Calibrate's own readings: rates
+are refused (it needs accumulated charge), and a file without units is DN
+when a gain is given or the file has a GAIN keyword (``decouple`` takes it
+as electrons), electrons otherwise. Each case is said in
+``meta["units_note"]``; never silent.
 
 **Refusals** (:class:`~ipc_taichi.errors.IPCInputError`, one line naming the
 file and HDU): bias products (:func:`ipc_taichi.products.missions.check_not_bias`,
@@ -51,6 +55,7 @@ import numpy as np
 
 from ..errors import IPCInputError
 from ..fitsio import parse_hdu
+from ..model import CouplingModel
 from ..products import conventions as cv
 from ..products import missions, plan
 from ..products.fits import array_facts
@@ -63,9 +68,9 @@ from ..products.fitsfile import (
     science_indices,
     shape_of,
 )
-from ..products.gain import read_gain
+from ..products.options import ProductOptions
 
-__all__ = ["ChargeFrames", "read_frames", "DEFAULT_DQ_BITS", "ROLES", "charge_units",
+__all__ = ["ChargeFrames", "read_frames", "DEFAULT_DQ_BITS", "ROLES", "plan_charge",
            "cube_rises", "RISE_SIGMAS"]
 
 DEFAULT_DQ_BITS = "DO_NOT_USE,SATURATED,JUMP_DET,DEAD"
@@ -124,7 +129,7 @@ def read_frames(path, hdu=None, gain=None, dq_bits=DEFAULT_DQ_BITS, refpix=None,
         Science HDU (FITS; default SCI, else the first image HDU).
     gain : float, str or None
         e-/DN (a number or a gain image file). Without BUNIT, a gain given
-        (or a GAIN keyword) makes the data DN; see :func:`charge_units`.
+        (or a GAIN keyword) makes the data DN; see :func:`plan_charge`.
     dq_bits : str or int
         See :data:`DEFAULT_DQ_BITS`.
     refpix : int or None
@@ -162,30 +167,38 @@ def _gain_text(g):
     return f"a gain image (median {float(np.nanmedian(g)):g} e-/DN)"
 
 
-def charge_units(bunit, bunit_keyword, gain, gain_keyword, shape2d, label, source="BUNIT"):
-    """Electrons per data unit, and the sentence that says how.
+def plan_charge(facts, mission, gain=None, bunit=None, refpix=None, source="BUNIT"):
+    """The product plan of one science array, made as ``decouple`` makes it,
+    and the sentence that says how its numbers became electrons.
+
+    Units, gain and layout are :func:`ipc_taichi.products.plan.plan_array`'s
+    (the rule of ``decouple``: DN need a gain, given or the GAIN keyword; a
+    gain given for data in electrons is refused; a GAIN keyword that is not
+    a number, or a gain image with no usable pixel, is refused naming it).
+    Calibrate adds two readings of its own: rates are refused (it needs
+    accumulated charge), and a file without units is taken as DN when a gain
+    is known (given, or its GAIN keyword; a lab file's habit), where
+    ``decouple`` takes it as electrons. The frames are measured as stored
+    (``NCOADDS`` is not applied: a coadded frame's noise is its sum's).
 
     Parameters
     ----------
+    facts : ArrayFacts
+        The array (:func:`ipc_taichi.products.fits.array_facts`, or a Roman
+        model's).
+    mission : Mission
+    gain : float, str or None
+        e-/DN given by the caller (a number or a gain image file).
     bunit : str or None
         Units given by the caller (override).
-    bunit_keyword : str or None
-        The file's units (its BUNIT, or a schema's).
-    gain, gain_keyword : float, str, ndarray or None
-        e-/DN given by the caller, and the file's GAIN keyword.
-    shape2d : (int, int)
-        The frame's shape (for a gain image).
-    label : str
-        The file and HDU, for error messages.
+    refpix : int or None
     source : str
-        Where ``bunit_keyword`` comes from, in the sentences.
+        Where the file's units come from, in the sentences.
 
     Returns
     -------
-    scale : float or ndarray
-        Electrons per data unit.
-    units_text : str
-        :func:`ipc_taichi.products.conventions.charge_scale`'s description.
+    arrays : ArrayPlan
+        ``scale`` (electrons per data unit), ``units_text``, ``layout``.
     info : dict
         ``units_note`` (one sentence), ``gain`` (float: e-/DN, the median of
         a gain image; None for electrons), ``gain_source`` ("given", "GAIN
@@ -194,36 +207,35 @@ def charge_units(bunit, bunit_keyword, gain, gain_keyword, shape2d, label, sourc
     Raises
     ------
     IPCInputError
-        Rates, flux units, unknown units, DN without a gain (one line naming
-        ``label``).
+        Rates, flux units, unknown units, DN without a gain, a gain given
+        for data in electrons (one line naming ``facts.label``).
     """
-    text = bunit if bunit is not None else bunit_keyword
+    text = bunit if bunit is not None else facts.keyword("BUNIT")
     said = "bunit" if bunit is not None else source
-    chosen = gain if gain is not None else gain_keyword
-    gain_source = None if chosen is None else ("given" if gain is not None else "GAIN keyword")
+    gain_source = "given" if gain is not None else (
+        "GAIN keyword" if facts.keyword("GAIN") is not None else None)
+    asked = bunit
     if text is not None and str(text).strip():
-        units = cv.parse_units(text, label, said)
         head = f"{said} {str(text).strip()!r}"
-    elif chosen is not None:
-        units, head = cv.Units("dn", "DN (no BUNIT)"), f"no {source}: taken as DN"
+    elif gain_source is not None:
+        head, asked = f"no {source}: taken as DN", "DN"
     else:
-        units, head = cv.Units("charge", ""), f"no {source} and no gain: taken as electrons"
+        head = f"no {source} and no gain: taken as electrons"
+    units = cv.parse_units(asked if asked is not None else text, facts.label, said)
     if units.rate:
-        raise IPCInputError(f"{label}: a rate ({units.text}); calibrate needs darks, ramps "
-                            "or flats of accumulated charge (DN or electrons)")
+        raise IPCInputError(f"{facts.label}: a rate ({units.text}); calibrate needs darks, "
+                            "ramps or flats of accumulated charge (DN or electrons)")
+    options = ProductOptions.from_kwargs(gain=gain, bunit=asked, refpix=refpix, pedestal="none",
+                                         coadds=1)
+    arrays = plan.plan_array(facts, mission, CouplingModel.resolve(), options)
     if not units.needs_gain:
-        scale, units_text = cv.charge_scale(units, None, None, label)
         note = head if head.startswith("no ") else f"{head}: electrons"
-        if gain is not None:
-            note += f"; the gain given ({_gain_text(read_gain(gain, shape2d))}) is unused"
-        return scale, units_text, {"units_note": note, "gain": None, "gain_source": None}
-    value = read_gain(chosen, shape2d)
-    scale, units_text = cv.charge_scale(units, value, None, label)
+        return arrays, {"units_note": note, "gain": None, "gain_source": None}
     where = "given" if gain_source == "given" else "from the GAIN keyword"
-    note = (f"{head}, gain {_gain_text(value)} {where}" if head.startswith("no ")
-            else f"{head}: DN converted with gain {_gain_text(value)} {where}")
-    used = float(np.nanmedian(np.asarray(value, dtype=np.float64)))
-    return scale, units_text, {"units_note": note, "gain": used, "gain_source": gain_source}
+    note = (f"{head}, gain {_gain_text(arrays.scale)} {where}" if head.startswith("no ")
+            else f"{head}: DN converted with gain {_gain_text(arrays.scale)} {where}")
+    used = float(np.nanmedian(np.asarray(arrays.scale, dtype=np.float64)))
+    return arrays, {"units_note": note, "gain": used, "gain_source": gain_source}
 
 
 # ---- FITS ----------------------------------------------------------------------------
@@ -260,27 +272,19 @@ def _read_fits(path, hdu, gain, dq_bits, refpix, bunit):
         index, label, raw = _science_hdu(path, hdul, parse_hdu(hdu))
         _check_reftype(hdul[0].header, label)
         shape = shape_of(hdul[index].header)
-        shape2d = shape[-2:]
-        scale, units_text, info = charge_units(
-            bunit, keyword(hdul, index, "BUNIT"), gain, keyword(hdul, index, "GAIN"), shape2d,
-            label)
-        data = np.asarray(read_array(path, hdul, index), dtype=np.float64) * scale
         mission = missions.recognise(hdul[0].header, hdul[index].header, hdul)
-        bits, lacking = plan.dq_bits_of(dq_bits, mission)
-        saturated_bit = bits & mission.flag("SATURATED")
-        flags = flag_hdus(hdul, index, shape, path)
-        layout = plan.layout_of(shape2d, mission, array_facts(path, hdul, index, label), refpix)
+        arrays, info = plan_charge(array_facts(path, hdul, index, label), mission, gain, bunit,
+                                   refpix)
+        layout, scale = arrays.layout, arrays.scale
         if not layout.arrangement.identity:
             raise IPCInputError(f"{label}: {layout.arrangement.describe()}: calibrate reads "
                                 "contiguous frames; give the products after the refpix step "
                                 "(its reference samples removed)")
-        region, inside = layout.region, layout.inside
-        mask = np.zeros(shape, dtype=bool)
-        saturated = np.zeros(shape, dtype=bool)
-        for k in flags:
-            f = np.asarray(read_array(path, hdul, k)).astype(np.int64)
-            mask |= (f & bits) != 0
-            saturated |= (f & saturated_bit) != 0
+        data = np.asarray(read_array(path, hdul, index), dtype=np.float64) * scale
+        bits, lacking = plan.dq_bits_of(dq_bits, mission)
+        flags = [read_array(path, hdul, k) for k in flag_hdus(hdul, index, shape, path)]
+        mask = _untrusted(flags, bits, shape, layout, scale)
+        saturated = _untrusted(flags, bits & mission.flag("SATURATED"), shape)
         saturate = keyword(hdul, index, "SATURATE")
         keys = {k: keyword(hdul, index, k) for k in ("NGROUPS", "NINTS", "READPATT")}
         keys["hdu"] = hdu_label(hdul, index)
@@ -297,8 +301,19 @@ def _read_fits(path, hdu, gain, dq_bits, refpix, bunit):
         mask = mask | mask[:, :1]
         level = None
     info.update(saturation=level, first_read_subtracted=raw, dq_note=_dq_note(lacking, path))
-    frames = _finish(path, label, data, mask, region, inside, units_text, info)
+    frames = _finish(path, label, data, mask, layout.region, arrays.units_text, info)
     return frames, len(shape), keys, (_as4d(saturated), " or ".join(said))
+
+
+def _untrusted(flags, bits, shape, layout=None, scale=None):
+    """The pixels ``decouple`` leaves out
+    (:func:`ipc_taichi.products.conventions.untrusted`: the DQ ``bits`` of
+    ``flags``, the reference-flagged pixels inside the science region of
+    ``layout``, the pixels of a gain image ``scale`` without a usable gain),
+    as an array of ``shape`` (all False when none)."""
+    mask = cv.untrusted(flags, bits, shape, None if layout is None else layout.inside_mask(),
+                        gain=scale)
+    return np.zeros(shape, dtype=bool) if mask is None else mask
 
 
 def _dq_note(lacking, path):
@@ -327,35 +342,41 @@ def _read_asdf(path, gain, dq_bits, refpix, bunit):
             from None
     with dm:
         data = np.asarray(dm.data, dtype=np.float64)
-        scale, units_text, info = charge_units(bunit, "DN", gain, None, data.shape[-2:], label,
-                                               source="Roman schema")
-        data = data * scale
+        names = [n for n in ("pixeldq", "groupdq", "dq") if n in dm and dm[n] is not None]
+        flags = [np.asarray(dm[n]) for n in names]
+        for name, f in zip(names, flags, strict=True):
+            if f.shape != data.shape[data.ndim - f.ndim:]:
+                raise IPCInputError(f"{path}[{name}]: shape {f.shape} does not match the "
+                                    f"data {data.shape}")
         mission = missions.roman_mission()
+        keys = missions.roman_keywords(type(dm).__name__, dm.meta)
+        facts = plan.ArrayFacts(0, "data", label, data.shape, keys, keys, _reference(flags))
+        arrays, info = plan_charge(facts, mission, gain, bunit, refpix, source="Roman schema")
         bits, _ = plan.dq_bits_of(dq_bits, mission)
-        mask = np.zeros(data.shape, dtype=bool)
-        for name in ("pixeldq", "groupdq", "dq"):
-            if name in dm and dm[name] is not None:
-                f = np.asarray(dm[name]).astype(np.int64)
-                if f.shape != data.shape[data.ndim - f.ndim:]:
-                    raise IPCInputError(f"{path}[{name}]: shape {f.shape} does not match the "
-                                        f"data {data.shape}")
-                mask |= (f & bits) != 0
-    facts = plan.ArrayFacts(0, "data", label, data.shape)
-    layout = plan.layout_of(data.shape[-2:], mission, facts, refpix)
-    region, inside = layout.region, layout.inside
+    data = data * arrays.scale
+    mask = _untrusted(flags, bits, data.shape, arrays.layout, arrays.scale)
     info.update(saturation=None, first_read_subtracted=False, dq_note=None)
-    frames = _finish(path, label, data, mask, region, inside, units_text, info)
+    frames = _finish(path, label, data, mask, arrays.layout.region, arrays.units_text, info)
     return frames, data.ndim, {"hdu": "data"}
 
 
-def _finish(path, label, data, mask, region, inside, units_text, meta):
+def _reference(flags):
+    """``() -> the REFERENCE_PIXEL flags of the first DQ array's first frame``
+    (a Roman model's, as :func:`ipc_taichi.products.plan.layout_of` asks)."""
+    def reference():
+        if not flags:
+            return None
+        first = flags[0].reshape((-1,) + flags[0].shape[-2:])[0].astype(np.int64)
+        return (first & cv.REFERENCE_PIXEL) != 0
+    return reference
+
+
+def _finish(path, label, data, mask, region, units_text, meta):
     """Mask NaN and the reference border; NaN where masked (in place: the
     arrays are this module's own)."""
     mask |= ~np.isfinite(data)
     outside = np.ones(data.shape[-2:], dtype=bool)
     outside[region] = False
-    if inside is not None:
-        outside[region] |= inside
     mask |= outside
     np.copyto(data, np.nan, where=mask)
     return ChargeFrames(path, label, _as4d(data), _as4d(mask), units_text, meta)

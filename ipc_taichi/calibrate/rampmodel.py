@@ -1,7 +1,9 @@
-"""The covariance model of flat ramps, its joint fit and its per-level points.
+"""The covariance model of flat ramps: what the increments' covariances are, given
+the parameters.
 
-Used by :class:`.ramps.FlatRamps` (which holds the sums of the data; the
-physics of the three effects is in its module text).
+Used by :mod:`.rampfit` (the joint fit of the sums of :mod:`.rampsums`) and by
+:class:`.ramps.FlatRamps` (the orchestration; the physics of the three effects
+is in its module text).
 
 Noise model (linear response about the flat; no expansion in ``a``). A
 fluctuation ``dQ`` of the collected charge obeys ``d(dQ)/dt = I a * dQ +
@@ -37,13 +39,12 @@ nearest IPC terms ~2 % low on solid-waffle's ramps with its infrared kernel).
 """
 
 import numpy as np
-from scipy import special
 
 from ..errors import IPCInputError
-from .flats import TERMS, solve_kernel
 
-__all__ = ["LAGS", "SYMMETRIC_LAGS", "VARIANTS", "kernel_from_symmetric",
-           "symmetric_from_kernel"]
+__all__ = ["LAGS", "SYMMETRIC_LAGS", "VARIANTS", "REFLECTIONS", "LAG_CLASSES", "TERM_CLASSES",
+           "kernel_from_symmetric", "symmetric_from_kernel", "with_zero_sum", "RampCovariance",
+           "mean_ramp", "variant_fixed"]
 
 LAGS = ((0, 0), (0, 1), (1, 0), (1, 1), (1, -1), (0, 2), (2, 0), (1, 2), (1, -2), (2, 1),
         (2, -1), (2, 2), (2, -2))
@@ -58,13 +59,19 @@ VARIANTS = ("ipc_only", "nonlinear_ipc", "brighter_fatter", "full")
 """Model variants: constant IPC; IPC with its signal dependence; constant IPC
 plus brighter-fatter; everything."""
 
-_CLASS = np.array([SYMMETRIC_LAGS.index((abs(dy), abs(dx))) for dy, dx in LAGS])
-_MULT = np.array([(1 if dy == 0 else 2) * (1 if dx == 0 else 2) for dy, dx in SYMMETRIC_LAGS])
-_TERM_CLASS = np.arange(1, 6)  # TERMS x, y, diagonal, second_x, second_y = classes 1..5
+LAG_CLASSES = np.array([SYMMETRIC_LAGS.index((abs(dy), abs(dx))) for dy, dx in LAGS])
+"""The class in :data:`SYMMETRIC_LAGS` of each of :data:`LAGS`."""
+
+REFLECTIONS = np.array([(1 if dy == 0 else 2) * (1 if dx == 0 else 2)
+                        for dy, dx in SYMMETRIC_LAGS])
+"""How many offsets of a 5x5 box each of :data:`SYMMETRIC_LAGS` stands for (its
+distinct reflections)."""
+
+TERM_CLASSES = np.arange(1, 6)
+"""The classes of :data:`SYMMETRIC_LAGS` of the five IPC terms
+(:data:`~ipc_taichi.calibrate.flats.TERMS` x, y, diagonal, second_x, second_y)."""
+
 _GRID = 20
-_MARGIN = 2
-_SCALES = {"r": 1.0, "s2": 100.0, "k0": 1e-2, "k1": 1e-6, "a": 1e-6, "common": 10.0}
-_DETECTION = 5.0
 
 
 def kernel_from_symmetric(values):
@@ -96,6 +103,15 @@ def symmetric_from_kernel(kernel):
     return np.array([avg[2 + dy, 2 + dx] for dy, dx in SYMMETRIC_LAGS])
 
 
+
+def with_zero_sum(values):
+    """The nine symmetric values of a brighter-fatter kernel with ``a(0, 0)`` set
+    so that the kernel sums to zero (charge is moved, not made)."""
+    a = np.array(values, dtype=np.float64)
+    a[0] = -(a[1:] @ REFLECTIONS[1:])
+    return a
+
+
 def _fourier_basis(n=_GRID):
     """Modes of a periodic ``n x n`` grid folded by the kernels' symmetry.
 
@@ -120,7 +136,7 @@ def _fourier_basis(n=_GRID):
 _BASIS, _INVERSE = _fourier_basis()
 
 
-class _Model:
+class RampCovariance:
     """Covariances of the increments of flat ramps (see the module docstring).
 
     Parameters: ``r``, ``s2`` (sigma^2 [e-^2]), ``k0`` (5), ``k1`` (5, per e-),
@@ -138,7 +154,7 @@ class _Model:
     def jacobian(self, p):
         """``J_i(f)`` (reads, modes)."""
         k = p["k0"][None, :] + p["k1"][None, :] * self.level[:, None]
-        offcentre = (_MULT[_TERM_CLASS, None] - _BASIS[_TERM_CLASS])
+        offcentre = (REFLECTIONS[TERM_CLASSES, None] - _BASIS[TERM_CLASSES])
         kernel = 1.0 - k @ offcentre
         return (1.0 - 2.0 * self.beta * self.level)[:, None] * kernel
 
@@ -198,7 +214,7 @@ class _Model:
         return self.increments(p)[:b, :b].sum(axis=(0, 1)) - ipc
 
 
-def _mean_ramp(increment_sums, n_pixels):
+def mean_ramp(increment_sums, n_pixels):
     """``I`` and ``beta`` from the mean increments ``I - beta I^2 (2k + 1)``.
 
     ``increment_sums`` (..., increments) summed over ``n_pixels`` pixels.
@@ -211,38 +227,7 @@ def _mean_ramp(increment_sums, n_pixels):
     return current, -coef[1] / current ** 2
 
 
-def _jackknife(samples):
-    """Jackknife covariance of leave-one-out estimates (samples, ...)."""
-    s = np.asarray(samples, dtype=np.float64)
-    n = s.shape[0]
-    dev = (s - s.mean(axis=0)).reshape(n, -1)
-    return (n - 1.0) / n * dev.T @ dev
-
-
-def _sigma_from_chi2(chi2, dof):
-    """Gaussian-equivalent significance of a chi^2 with ``dof`` degrees of freedom."""
-    from scipy.stats import chi2 as chi2_dist
-
-    x = max(float(chi2), 0.0)
-    logp = chi2_dist.logsf(x, dof)
-    if not np.isfinite(logp):  # far tail: the leading term of the asymptotic series
-        logp = -x / 2 + (dof / 2 - 1) * np.log(x / 2) - special.gammaln(dof / 2)
-    return float(-special.ndtri_exp(logp)) if logp < np.log(0.5) else 0.0
-
-
-# ---------------------------------------------------------------------- fit helpers
-def _start(cov, current, nints):
-    """Starting parameters from the data."""
-    g = cov.shape[-1]
-    diag0 = np.diagonal(cov[0])
-    s2 = max(-np.mean(np.diagonal(cov[0], offset=1)), 0.0) if g > 1 else 0.0
-    shot = max(np.mean(diag0) - 2 * s2, 1e-3 * current)
-    k0 = np.array([np.mean(np.diagonal(cov[c])) / (2 * shot) for c in _TERM_CLASS])
-    return {"r": current / shot, "s2": s2, "k0": k0, "k1": np.zeros(5), "a": np.zeros(9),
-            "common": np.zeros(18) if nints == 1 else None}
-
-
-def _variant_fixed(variant, nints):
+def variant_fixed(variant, nints):
     """Parameters held fixed in a variant (and by one integration)."""
     fixed = {}
     if variant in ("ipc_only", "brighter_fatter"):
@@ -250,166 +235,3 @@ def _variant_fixed(variant, nints):
     if variant in ("ipc_only", "nonlinear_ipc") or nints == 1:
         fixed["a"] = np.zeros(9)
     return fixed
-
-
-def _pack(p, fixed, nints):
-    """Free parameter names (name, index) and their scaled start vector."""
-    names = []
-    for name, size in (("r", None), ("s2", None), ("k0", 5), ("k1", 5)):
-        if name not in fixed:
-            names += [(name, None)] if size is None else [(name, i) for i in range(size)]
-    if "a" not in fixed:
-        names += [("a", i) for i in range(1, 9)]  # a(0,0) from sum a = 0
-    if nints == 1:
-        names += [("common", i) for i in range(18)]
-    x0 = np.array([(p[n] if i is None else p[n][i]) / _SCALES[n] for n, i in names])
-    return names, x0
-
-
-def _unpack(x, names, p0, fixed):
-    """Parameters from the scaled vector."""
-    p = {k: (np.array(v, dtype=np.float64) if isinstance(v, np.ndarray) else v)
-         for k, v in p0.items()}
-    p.update({k: (np.array(v) if isinstance(v, np.ndarray) else v) for k, v in fixed.items()})
-    for value, (name, i) in zip(x, names, strict=True):
-        if i is None:
-            p[name] = value * _SCALES[name]
-        else:
-            p[name][i] = value * _SCALES[name]
-    p["a"][0] = -(p["a"][1:] @ _MULT[1:])
-    return p
-
-
-def _errors(jack):
-    """``errors(name, index=None)``: jackknife standard error of a parameter."""
-    def errors(name, index=None):
-        if len(jack) < 3:
-            return None
-        vals = [j[name] if index is None else j[name][index] for j in jack]
-        return float(np.sqrt(_jackknife(vals)[0, 0]))
-    return errors
-
-
-def _scaled(value, factor):
-    return None if value is None else float(value * factor)
-
-
-def _significance(value, error):
-    return None if error is None or not error > 0 else float(value / error)
-
-
-def _nonlinearity_report(full, jack, errors, integration_betas):
-    err = errors("beta")
-    if integration_betas is not None and err is not None:
-        n = integration_betas.size
-        err = max(err, float(np.std(integration_betas, ddof=1) / np.sqrt(n)))
-    sig = _significance(full["beta"], err)
-    return {"measured": err is not None, "beta": float(full["beta"]), "error": err,
-            "significance": sig, "detected": bool(sig is not None and abs(sig) >= _DETECTION),
-            "form": "M = Q - beta Q^2 (Q collected, M measured, e-)",
-            "note": "from the curvature of the mean ramp; error: the larger of the jackknife "
-                    "over blocks and the scatter between integrations"}
-
-
-def _nonlinear_ipc_report(full, jack, nints):
-    value = float(full["k1"][0] + full["k1"][1]) * 1e4
-    err = None
-    if len(jack) >= 3:
-        err = float(np.sqrt(_jackknife([1e4 * (j["k1"][0] + j["k1"][1]) for j in jack])[0, 0]))
-    sig = _significance(value, err)
-    detected = bool(sig is not None and abs(sig) >= _DETECTION)
-    note = (f"slope of the nearest terms x + y: {value:+.3g} per 10 ke-"
-            + ("" if err is None else f" +- {err:.2g}") + ", fitted beside "
-            + ("brighter-fatter" if nints > 1 else "the common brighter-fatter and pattern term"))
-    return {"detected": detected, "significance": sig, "slope_per_10ke": value, "error": err,
-            "note": note + (": detected" if detected else ": not detected")}
-
-
-def _bf_report(full, jack, nints):
-    if nints < 2:
-        return {"measured": False, "detected": False, "significance": None, "kernel": None,
-                "kernel_error": None,
-                "note": "brighter-fatter not measured: at least two integrations at one "
-                        "illumination are needed to tell it from the fixed pattern (their "
-                        "common term was fitted beside the IPC terms and removed)"}
-    kernel = kernel_from_symmetric(full["a"]).tolist()
-    if len(jack) < 3:
-        return {"measured": True, "detected": False, "significance": None, "kernel": kernel,
-                "kernel_error": None, "note": "fewer than 3 blocks: no error"}
-    cov = _jackknife([j["a"] for j in jack])
-    err = np.sqrt(np.diag(cov))
-    nearest = float(full["a"][1] + full["a"][2])
-    nearest_err = float(np.sqrt(_jackknife([j["a"][1] + j["a"][2] for j in jack])[0, 0]))
-    sig = _significance(nearest, nearest_err)
-    free = cov[1:, 1:]
-    try:
-        chi2 = float(full["a"][1:] @ np.linalg.solve(free, full["a"][1:]))
-    except np.linalg.LinAlgError:
-        chi2 = float("nan")
-    detected = bool(sig is not None and sig >= _DETECTION)
-    return {"measured": True, "detected": detected, "significance": sig,
-            "significance_kind": "nearest terms a(0,1) + a(1,0) over their jackknife error",
-            "chi2": chi2, "chi2_sigma": _sigma_from_chi2(chi2, 8) if np.isfinite(chi2) else None,
-            "kernel": kernel, "kernel_error": kernel_from_symmetric(err).tolist(),
-            "note": "per electron; pixel area 1 + sum_d a(d) Q(p+d); symmetric part: "
-                    + ("detected" if detected else "not detected")}
-
-
-def _public_params(p, n_groups):
-    """Fit parameters as plain numbers (for :meth:`FlatRamps.predict` and JSON)."""
-    return {"n_groups": int(n_groups), "current": float(p["current"]),
-            "beta": float(p["beta"]), "gain_ratio": float(p["r"]),
-            "read_noise_variance": float(p["s2"]),
-            "k0": dict(zip(TERMS, map(float, p["k0"]), strict=True)),
-            "k1_per_electron": dict(zip(TERMS, map(float, p["k1"]), strict=True)),
-            "brighter_fatter": [float(v) for v in p["a"]],
-            "common": None if p.get("common") is None else [float(v) for v in p["common"]],
-            "collection_steps": p["steps"]}
-
-
-def _internal_params(params):
-    return {"current": params["current"], "beta": params["beta"], "r": params["gain_ratio"],
-            "s2": params["read_noise_variance"],
-            "k0": np.array([params["k0"][t] for t in TERMS]),
-            "k1": np.array([params["k1_per_electron"][t] for t in TERMS]),
-            "a": np.array(params["brighter_fatter"], dtype=np.float64),
-            "common": None if params.get("common") is None else np.array(params["common"]),
-            "steps": params.get("collection_steps")}
-
-
-# ---------------------------------------------------------------------- levels
-def _level_note(nints, given):
-    if nints < 2:
-        return ("one integration: brighter-fatter not measured and not told from the fixed "
-                "pattern; their common term, fitted from the pairs of different increments, "
-                "was removed")
-    if given:
-        return "brighter-fatter removed with the kernel given"
-    return "brighter-fatter removed with the kernel measured from the ramps"
-
-
-def _level_point(data, p, n_groups, inc, method):
-    """``(V, terms)`` of one level, brighter-fatter and read noise removed.
-
-    ``difference``: ``Cov(M_b - M_0)`` with ``b = inc.size``; ``increments``:
-    the mean same-increment covariance of the increments ``inc``.
-    """
-    cov, counts = data[0], data[1]
-    model = _Model(n_groups, p["current"], p["beta"], p["steps"])
-    if method == "difference":
-        b = inc.size
-        clean = cov[:, :b, :b].sum(axis=(1, 2)) - model.excess_of_difference(p, b)
-        n = counts
-    else:
-        same = np.diagonal(cov, axis1=1, axis2=2)[:, inc]
-        clean = (same - model.excess_of_increments(p)[:, inc]).mean(axis=1)
-        n = counts * inc.size
-    err = np.sqrt((clean[0] ** 2 + clean ** 2) / n)
-    entries = {f"{dy},{dx}": {"cov": float(clean[c]), "error": float(err[c])}
-               for c, (dy, dx) in enumerate(SYMMETRIC_LAGS)}
-    entries["1,-1"] = entries["1,1"]
-    try:
-        solved = solve_kernel(entries, 0.0)
-    except IPCInputError:
-        return None
-    return solved["V"], np.array([solved["terms"][t]["value"] for t in TERMS])

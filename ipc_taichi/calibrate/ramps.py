@@ -48,41 +48,43 @@ points; brighter-fatter only a few % of them), or the covariances of
 at the top of a ramp the brighter-fatter term removed is as large as the
 IPC term).
 
-The covariance model, its fit and the per-level points are in
-:mod:`.rampmodel`.
+This module holds the orchestration (:class:`FlatRamps`: which blocks, which
+fits, the cache, the public record); the seams are :mod:`.rampsums` (ramps
+into sums per block), :mod:`.rampmodel` (the covariance model) and
+:mod:`.rampfit` (the joint fit, its jackknife errors, its reports and the
+per-level points).
 """
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from ..errors import IPCInputError
 from .flats import TERMS
+from .rampfit import (
+    bf_report,
+    fit_increments,
+    internal_params,
+    ipc_report,
+    jackknife,
+    jackknife_errors,
+    level_note,
+    level_point,
+    nonlinear_ipc_report,
+    nonlinearity_report,
+    public_params,
+    read_noise_report,
+)
 from .rampmodel import (
-    _CLASS,
-    _MARGIN,
-    _MULT,
     LAGS,
     SYMMETRIC_LAGS,
     VARIANTS,
-    _bf_report,
-    _errors,
-    _internal_params,
-    _jackknife,
-    _level_note,
-    _level_point,
-    _mean_ramp,
-    _Model,
-    _nonlinear_ipc_report,
-    _nonlinearity_report,
-    _pack,
-    _public_params,
-    _scaled,
-    _start,
-    _unpack,
-    _variant_fixed,
+    RampCovariance,
     kernel_from_symmetric,
+    mean_ramp,
     symmetric_from_kernel,
+    variant_fixed,
+    with_zero_sum,
 )
+from .rampsums import block_sums, symmetrise
 
 __all__ = ["FlatRamps", "LAGS", "SYMMETRIC_LAGS", "VARIANTS", "kernel_from_symmetric",
            "symmetric_from_kernel"]
@@ -121,8 +123,8 @@ class FlatRamps:
         self.n_groups = int(self._sums.shape[-1]) + 1
         self.notes = list(notes)
         self.collection_steps = None if not collection_steps else int(collection_steps)
-        current, _ = _mean_ramp(self._increments.sum(axis=(0, 1)),
-                                self._pixels.sum() * self.n_integrations)
+        current, _ = mean_ramp(self._increments.sum(axis=(0, 1)),
+                               self._pixels.sum() * self.n_integrations)
         self.current = float(current)
         self._cache = {}
 
@@ -164,31 +166,9 @@ class FlatRamps:
             data = data[None]
         if data.ndim != 4:
             raise IPCInputError(f"flat ramps are (nints, ngroups, ny, nx), got {data.shape}")
-        nints, ngroups, ny, nx = data.shape
-        good, used, finite, notes = _usable(data, mask, border, saturation)
-        if used < 4:
-            raise IPCInputError(f"flat ramps: only {used} usable reads (at least 4 are needed "
-                                "for the mean-ramp curvature and the time structure)")
-        if good.sum() < 25 * blocks[0] * blocks[1]:
-            raise IPCInputError(f"flat ramps: only {int(good.sum())} usable pixels for "
-                                f"{blocks[0]}x{blocks[1]} blocks")
-        rows = np.linspace(0, ny, blocks[0] + 1).round().astype(int)
-        cols = np.linspace(0, nx, blocks[1] + 1).round().astype(int)
-        edges = [(rows[i], rows[i + 1], cols[j], cols[j + 1])
-                 for i in range(blocks[0]) for j in range(blocks[1])]
-        inc_sums = np.diff([_block_read_sums(data, good, e, used, finite) for e in edges],
-                           axis=2)
-        n_pixels = np.array([good[y0:y1, x0:x1].sum() for y0, y1, x0, x1 in edges])
-        mean_inc = inc_sums.sum(axis=0) / n_pixels.sum()  # (nints, increments)
-        offset = mean_inc - mean_inc.mean(axis=0) if nints > 1 else mean_inc
-        if nints > 1:
-            offset = offset * np.sqrt(nints / (nints - 1.0))
-        else:
-            notes.append("one integration: the fixed pattern cannot be subtracted")
-        sums, counts = zip(*(_block_products(data, good, e, used, offset) for e in edges),
-                           strict=True)
-        return cls(np.array(sums), np.array(counts), inc_sums, n_pixels, nints, notes,
-                   collection_steps)
+        sums, counts, inc_sums, n_pixels, notes = block_sums(data, mask, border, blocks,
+                                                             saturation)
+        return cls(sums, counts, inc_sums, n_pixels, data.shape[0], notes, collection_steps)
 
     # ------------------------------------------------------------------ data
     def _block_list(self, blocks):
@@ -203,7 +183,7 @@ class FlatRamps:
         """Summed statistics of ``blocks``: symmetric covariances (9, G', G'),
         counts (9,), mean increments' sums (nints, G'), pixels."""
         sel = list(blocks)
-        return _symmetrise(self._sums[sel].sum(axis=0), self._counts[sel].sum(axis=0)) + (
+        return symmetrise(self._sums[sel].sum(axis=0), self._counts[sel].sum(axis=0)) + (
             self._increments[sel].sum(axis=0), self._pixels[sel].sum())
 
     def _samples(self, blocks):
@@ -235,43 +215,14 @@ class FlatRamps:
 
     # ------------------------------------------------------------------ fitting
     def _fit(self, data, fixed, start=None, read_noise=None):
-        """Weighted least squares of the increment covariances; returns params."""
-        cov, counts, incs, npix = data
-        current, beta = _mean_ramp(incs.sum(axis=0), npix * self.n_integrations)
-        model = _Model(self.n_groups, current, beta, self.collection_steps)
-        iu = np.triu_indices(self.n_groups - 1)
-        target = cov[:, iu[0], iu[1]]
-        diag = np.diagonal(cov[0])
-        # independent products: a lag other than 0 between two different
-        # increments is seen in both orders; the pattern subtraction costs 1/n
-        orders = np.ones((9, iu[0].size))
-        orders[1:, iu[0] != iu[1]] = 2.0
-        kept = (self.n_integrations - 1.0) / self.n_integrations if self.n_integrations > 1 \
-            else 1.0
-        sigma = np.sqrt(((diag[iu[0]] * diag[iu[1]])[None, :] + target ** 2)
-                        / (kept * counts[:, None] * orders))
-        p0 = start if start is not None else _start(cov, current, self.n_integrations)
-        if read_noise is not None:
-            p0 = dict(p0, s2=float(read_noise) ** 2)
-            fixed = dict(fixed, s2=p0["s2"])
-        names, x0 = _pack(p0, fixed, self.n_integrations)
-
-        def residual(x):
-            p = _unpack(x, names, p0, fixed)
-            return ((model.increments(p)[iu[0], iu[1], :].T - target) / sigma).ravel()
-
-        fit = least_squares(residual, x0, method="lm", x_scale=1.0, xtol=1e-12, ftol=1e-12)
-        p = _unpack(fit.x, names, p0, fixed)
-        dof = max(target.size - len(fit.x), 1)
-        p.update(current=float(current), beta=float(beta), steps=self.collection_steps,
-                 chi2_per_dof=float(2 * fit.cost / dof))
-        return p
+        return fit_increments(data, fixed, self.n_groups, self.n_integrations,
+                              self.collection_steps, start, read_noise)
 
     def _fits(self, blocks, read_noise, bf_values=None, variant="full"):
         """Full and leave-one-out fits of ``blocks`` (cached)."""
         key = (blocks, read_noise, None if bf_values is None else tuple(bf_values), variant)
         if key not in self._cache:
-            fixed = _variant_fixed(variant, self.n_integrations)
+            fixed = variant_fixed(variant, self.n_integrations)
             if bf_values is not None:
                 fixed["a"] = np.asarray(bf_values, dtype=np.float64)
             full_data, loo = self._samples(blocks)
@@ -318,31 +269,20 @@ class FlatRamps:
         out = {"current": full["current"], "n_pixels": int(full_data[3]),
                "n_integrations": self.n_integrations, "n_groups": self.n_groups,
                "chi2_per_dof": full["chi2_per_dof"], "notes": list(self.notes)}
-        errors = _errors(jack)
+        errors = jackknife_errors(jack)
         if not jack:
             out["notes"].append("fewer than 3 blocks: no jackknife, errors unknown")
         out["gain_ratio"] = {"value": float(full["r"]), "error": errors("r")}
-        sigma = np.sqrt(max(full["s2"], 0.0))
-        s_err = errors("s2")
-        out["read_noise"] = {
-            "value": float(sigma),
-            "error": None if read_noise is not None else (
-                float(s_err / (2 * sigma)) if sigma > 0 and s_err is not None else s_err),
-            "source": "given" if read_noise is not None else
-            "fitted (covariance of consecutive increments)"}
-        out["classical_nonlinearity"] = _nonlinearity_report(full, jack, errors,
-                                                             self._integration_betas(blocks))
-        out["ipc"] = {"terms": {t: {"value": float(full["k0"][i]),
-                                    "error": errors("k0", i),
-                                    "slope_per_10ke": float(1e4 * full["k1"][i]),
-                                    "slope_error": _scaled(errors("k1", i), 1e4)}
-                                for i, t in enumerate(TERMS)}}
-        out["nonlinear_ipc"] = _nonlinear_ipc_report(full, jack, self.n_integrations)
-        out["brighter_fatter"] = _bf_report(full, jack, self.n_integrations)
+        out["read_noise"] = read_noise_report(full, errors, read_noise)
+        out["classical_nonlinearity"] = nonlinearity_report(full, jack, errors,
+                                                            self._integration_betas(blocks))
+        out["ipc"] = ipc_report(full, errors)
+        out["nonlinear_ipc"] = nonlinear_ipc_report(full, jack, self.n_integrations)
+        out["brighter_fatter"] = bf_report(full, jack, self.n_integrations)
         variants = {v: self._fits(blocks, read_noise, variant=v)[1] for v in VARIANTS}
-        out["params"] = _public_params(full, self.n_groups)
+        out["params"] = public_params(full, self.n_groups)
         out["variants"] = {v: {"chi2_per_dof": p["chi2_per_dof"],
-                               "params": _public_params(p, self.n_groups)}
+                               "params": public_params(p, self.n_groups)}
                            for v, p in variants.items()}
         out["covariance_curves"] = self._curves(full_data, loo, full, out["variants"])
         return out
@@ -391,9 +331,9 @@ class FlatRamps:
         given = bf_kernel is not None and self.n_integrations > 1
         values = symmetric_from_kernel(bf_kernel) if given else None
         if values is not None:
-            values = values - np.array([values @ _MULT, *np.zeros(8)])  # keep sum a = 0
+            values = with_zero_sum(values)
         full_data, full, loo, jack = self._fits(blocks, read_noise, values)
-        notes = [_level_note(self.n_integrations, given)]
+        notes = [level_note(self.n_integrations, given)]
         n_inc = self.n_groups - 1
         if method == "difference":
             picks = [np.arange(b) for b in np.unique(np.round(
@@ -402,8 +342,8 @@ class FlatRamps:
             picks = [w for w in np.array_split(np.arange(n_inc), min(8, n_inc)) if w.size]
         rows = []
         for inc in picks:
-            point = _level_point(full_data, full, self.n_groups, inc, method)
-            samples = [_level_point(d, p, self.n_groups, inc, method)
+            point = level_point(full_data, full, self.n_groups, inc, method)
+            samples = [level_point(d, p, self.n_groups, inc, method)
                        for d, p in zip(loo, jack, strict=True)]
             samples = [s for s in samples if s is not None]
             level = float(full["current"] * (inc.size if method == "difference"
@@ -414,7 +354,7 @@ class FlatRamps:
                 rows.append({"level": level, "reads": reads, "terms": None,
                              "problem": "no shot noise left", "notes": notes})
                 continue
-            err = np.sqrt(np.diag(_jackknife([s[1] for s in samples]))) \
+            err = np.sqrt(np.diag(jackknife([s[1] for s in samples]))) \
                 if len(samples) >= 3 else np.full(5, np.nan)
             mean_charge = level if method == "difference" else full["current"]
             rows.append({"level": level, "reads": reads,
@@ -446,10 +386,10 @@ class FlatRamps:
         """
         if variant not in VARIANTS:
             raise IPCInputError(f"variant must be one of {VARIANTS}, got {variant!r}")
-        p = _internal_params(params)
-        for name, value in _variant_fixed(variant, 2).items():
+        p = internal_params(params)
+        for name, value in variant_fixed(variant, 2).items():
             p[name] = value
-        model = _Model(int(params["n_groups"]), p["current"], p["beta"], p["steps"])
+        model = RampCovariance(int(params["n_groups"]), p["current"], p["beta"], p["steps"])
         lag = SYMMETRIC_LAGS.index((abs(int(delta[0])), abs(int(delta[1]))))
         same = np.diagonal(model.increments(p)[:, :, lag])
         return {"level": model.level[1:].copy(), "value": same * p["r"] / p["current"]}
@@ -460,7 +400,7 @@ class FlatRamps:
         if self.n_integrations < 3:
             return None
         sel = list(blocks)
-        return _mean_ramp(self._increments[sel].sum(axis=0), self._pixels[sel].sum())[1]
+        return mean_ramp(self._increments[sel].sum(axis=0), self._pixels[sel].sum())[1]
 
     def _curves(self, full_data, loo, full, variants):
         """Same-increment normalised covariances, measured and per variant."""
@@ -471,7 +411,7 @@ class FlatRamps:
         for c, (dy, dx) in enumerate(SYMMETRIC_LAGS):
             measured = np.diagonal(full_data[0][c]) * norm
             if loo:
-                err = np.sqrt(np.diag(_jackknife([np.diagonal(d[0][c]) * norm for d in loo])))
+                err = np.sqrt(np.diag(jackknife([np.diagonal(d[0][c]) * norm for d in loo])))
             else:
                 err = np.full(measured.shape, np.nan)
             row = {"measured": measured.tolist(), "error": err.tolist()}
@@ -479,121 +419,3 @@ class FlatRamps:
                 row[v] = self.predict(variants[v]["params"], (dy, dx), v)["value"].tolist()
             out["lags"][f"{dy},{dx}"] = row
         return out
-
-
-# ---------------------------------------------------------------------- reading helpers
-def _usable(data, mask, border, saturation):
-    """Good pixels (ny, nx), the number of reads used, whether every used read is
-    finite, notes."""
-    nints, ngroups, ny, nx = data.shape
-    notes = []
-    used = ngroups
-    if saturation is not None:
-        frac = np.array([(data[:, g] >= float(saturation)).mean() for g in range(ngroups)])
-        over = np.nonzero(frac > 0.01)[0]
-        if over.size:
-            used = int(over[0])
-            notes.append(f"reads {used}..{ngroups - 1} not used: more than 1 % of the pixels "
-                         f"at or above the saturation level {float(saturation):.6g} e-")
-    bad = np.zeros((ny, nx), bool)
-    for i in range(nints):
-        part = data[i, :used]
-        bad |= ~np.isfinite(part).all(axis=0)
-    finite = not bad.any()
-    for i in range(nints):
-        part = data[i, :used]
-        if saturation is not None:
-            bad |= (part >= float(saturation)).any(axis=0)
-    if mask is not None:
-        m = np.asarray(mask, bool)
-        if m.shape == (ny, nx):
-            bad |= m
-        elif m.shape == data.shape:
-            bad |= m[:, :used].any(axis=(0, 1))
-        else:
-            raise IPCInputError(f"mask shape {m.shape} fits neither the ramps {data.shape} "
-                                "nor a frame")
-    b = int(border)
-    if b > 0:
-        bad[:b] = bad[-b:] = True
-        bad[:, :b] = bad[:, -b:] = True
-    return ~bad, used, finite, notes
-
-
-def _region(data, good, edge, used):
-    """A block with a margin of 2 (zero outside the frame): increments
-    (nints, G', h, w), good pixels in the margin, good pixels of the block."""
-    y0, y1, x0, x1 = edge
-    nints, _, ny, nx = data.shape
-    m = _MARGIN
-    h, w = y1 - y0 + 2 * m, x1 - x0 + 2 * m
-    reads = np.zeros((nints, used, h, w))
-    ya, yb, xa, xb = max(y0 - m, 0), min(y1 + m, ny), max(x0 - m, 0), min(x1 + m, nx)
-    sl = (slice(ya - y0 + m, yb - y0 + m), slice(xa - x0 + m, xb - x0 + m))
-    reads[:, :, sl[0], sl[1]] = data[:, :used, ya:yb, xa:xb]
-    ok = np.zeros((h, w), bool)
-    ok[sl] = good[ya:yb, xa:xb]
-    inner = np.zeros((h, w), bool)
-    inner[m:h - m, m:w - m] = ok[m:h - m, m:w - m]
-    reads = np.where(ok, reads, 0.0)
-    return np.diff(reads, axis=1), ok, inner
-
-
-def _block_read_sums(data, good, edge, used, finite):
-    """Sum over the block's good pixels of each read (nints, used)."""
-    y0, y1, x0, x1 = edge
-    vals = data[:, :used, y0:y1, x0:x1]
-    ok = good[y0:y1, x0:x1]
-    if not finite:
-        vals = np.where(ok, vals, 0.0)
-    return np.einsum("igyx,yx->ig", vals, ok.astype(np.float64))
-
-
-def _block_products(data, good, edge, used, offset):
-    """``P + P^T`` with ``P = sum_p d_k(p) d_l(p + delta)`` over the block's pixels
-    ``p`` (13, G', G'), and the number of pixel pairs per lag (13,).
-
-    Only the symmetric part is needed, so each lag costs one symmetric rank-k
-    update: with ``A`` the block's increments and ``B`` those shifted by the lag,
-    ``A B^T + B A^T = (A + B)(A + B)^T - A A^T - B B^T``.
-    """
-    inc, ok, inner = _region(data, good, edge, used)
-    nints, g = inc.shape[:2]
-    if nints > 1:
-        inc = (inc - inc.mean(axis=0)) * np.sqrt(nints / (nints - 1.0))
-    inc -= offset[:, :, None, None]
-    inc *= ok
-    h, w = ok.shape
-    size = h * w
-    flat = inc.reshape(nints, g, size)
-    okf, inf = ok.ravel(), inner.ravel()
-    sums = np.zeros((len(LAGS), g, g))
-    counts = np.array([nints * np.count_nonzero(inf[:size - s] & okf[s:])
-                       for s in (dy * w + dx for dy, dx in LAGS)], dtype=np.float64)
-    for i in range(nints):
-        whole = flat[i]
-        first = whole * inf.astype(np.float64)
-        aa = first @ first.T
-        bb_all = whole @ whole.T
-        for n, (dy, dx) in enumerate(LAGS):
-            s = dy * w + dx
-            if s == 0:
-                sums[n] += 2.0 * aa
-                continue
-            head = whole[:, :s]
-            both = first[:, :size - s] + whole[:, s:]
-            sums[n] += both @ both.T - aa - (bb_all - head @ head.T)
-    return sums, counts
-
-
-def _symmetrise(sums, counts):
-    """Symmetric covariances (9, G', G') (both orders of each pair, the four
-    reflections of each lag) and the pixel-pair counts per lag (9,)."""
-    g = sums.shape[-1]
-    total = np.zeros((9, g, g))
-    n = np.zeros(9)
-    for raw, c in enumerate(_CLASS):
-        total[c] += sums[raw]
-        n[c] += counts[raw]
-    return total / (2.0 * n[:, None, None]), n
-

@@ -35,17 +35,26 @@ the detector's map for a per-pixel file); with measurements it is reported
 beside them for comparison.
 """
 
-import datetime
 import os
 import warnings
 
 import numpy as np
 
-from .. import __version__
 from ..errors import IPCInputError
 from ..fitsio import check_output_path
 from ..model import CouplingModel
-from . import assumptions, hotpixels, lawfit, maps, ramps, reffiles, report, transfer, verdicts
+from . import (
+    assumptions,
+    hotpixels,
+    lawfit,
+    maps,
+    ramps,
+    records,
+    reffiles,
+    report,
+    transfer,
+    verdicts,
+)
 from . import flats as flatmod
 from .inputs import DEFAULT_DQ_BITS, read_frames
 
@@ -364,8 +373,7 @@ def _gain_used(files, gain):
         if f.meta.get("gain") is not None:
             return {"given": gain, "value": float(np.mean(f.meta["gain"])),
                     "source": f.meta.get("gain_source")}
-    return {"given": gain, "value": None,
-            "source": "unused: the inputs are in electrons" if gain is not None else None}
+    return {"given": gain, "value": None, "source": None}
 
 
 def calibrate(darks=(), flats=(), reference=None, output=None, *, report_path=None,
@@ -391,8 +399,9 @@ def calibrate(darks=(), flats=(), reference=None, output=None, *, report_path=No
     report_path, figures : str, optional
         The report (JSON) and a folder for figures.
     gain : float or str, optional
-        e-/DN for inputs in DN (default: each file's GAIN keyword). A file
-        without BUNIT is taken as DN when a gain is known (said).
+        e-/DN for inputs in DN (default: each file's GAIN keyword), every
+        input's; refused for an input in electrons, as ``decouple`` refuses
+        it. A file without BUNIT is taken as DN when a gain is known (said).
     bunit : str, optional
         Units of the inputs, overriding their BUNIT.
     hdu : optional
@@ -483,36 +492,15 @@ def calibrate(darks=(), flats=(), reference=None, output=None, *, report_path=No
              else CouplingModel.resolve(law, geometry, "zero",
                                         bonds=bond_map["bonds"] if bond_map else None))
     nl_ipc = verdicts.nonlinear_ipc(fit, effects.pop("flat_ramp_nonlinear_ipc"), transfer_check)
-    provenance = {"software": f"ipc_taichi {__version__}", "command": "calibrate",
-                  "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
-                  "darks": [f.label for f in dark_frames], "flats": [f.label for f in flat_frames],
-                  "reference": reference,
-                  "units": sorted({f.units for f in dark_frames + flat_frames}),
-                  "gain": effects["gain"]["used"], "gain_source": effects["gain"]["source"],
-                  "read_noise_e": rn,
-                  "read_noise_source": ("given" if read_noise is not None else
-                                        "darks" if hot.read_noise is not None else "unknown (0)")}
-    summary = {k: fit.get(k) for k in ("chosen", "law", "weights", "weight_errors", "assumed",
-                                       "held_outside", "notes", "chi2_per_point", "n_points")}
-    summary["law_choice"] = fit.get("law_choice")
-    summary["not_measured"] = not_measured
-    document = {"provenance": provenance, "model": model.describe(),
-                "inputs": [_input_record(f, role) for role, files in
-                           (("dark", dark_frames), ("flat", flat_frames)) for f in files],
-                **effects, "nonlinear_ipc": nl_ipc, "law_choice": fit.get("law_choice"),
-                "transfer": transfer_check, "fit": fit,
-                "hot_pixels": {"found": hot.found, "bins": hot.rows, "floors_e": hot.floors},
-                "flats": {"levels": flat.rows if flat else [],
-                          "ramps": [{"files": label, **m} for label, m in flat.measured]
-                          if flat else [],
-                          "growth_with_signal": flatmod.growth_with_signal(
-                              flat.frame_rows) if flat else {}},
-                "bond_map": ({k: v for k, v in bond_map.items() if k != "bonds"}
-                             if bond_map else None), "assumptions": tested,
-                "reference": ref, "not_measured": not_measured, "notes": notes}
+    inputs = records.Inputs(tuple(dark_frames), tuple(flat_frames), reference, read_noise,
+                            hot.read_noise, rn)
+    outcome = records.Outcome(hot, flat, effects, nl_ipc, fit, transfer_check, bond_map, tested,
+                              ref, not_measured, notes)
+    provenance = inputs.provenance(effects["gain"])
+    document = records.assemble(inputs, outcome, model, provenance)
     if output is not None:
-        model.save(output, provenance=provenance, fit=report.json_ready(summary),
-                   overwrite=overwrite, sections=report.json_ready(_sections(effects, fit)))
+        model.save(output, provenance=provenance, fit=report.json_ready(outcome.summary()),
+                   overwrite=overwrite, sections=report.json_ready(outcome.sections()))
     if report_path is not None:
         report.write_report(document, report_path, overwrite=overwrite)
     if figures is not None:
@@ -551,35 +539,3 @@ def _map_and_assumptions(dark_frames, flat_frames, hot, flat, law, geometry, rn,
                   float(law.alpha(1e4, 1e4))),
               assumptions.hot_pixel_brighter_fatter(hot.slope(), effects["brighter_fatter"])]
     return bond_map, tested
-
-
-
-
-def _sections(effects, fit):
-    """The model file's named sections (never used by ``decouple``)."""
-    out = {}
-    bf = effects["brighter_fatter"]
-    if bf.get("measured") and bf.get("kernel") is not None:
-        out["brighter_fatter"] = {"kernel": bf["kernel"], "kernel_error": bf["kernel_error"],
-                                  "detected": bf.get("detected"), "units": "1/electron",
-                                  "convention": "pixel area 1 + sum_d a(d) Q(p+d); "
-                                                "kernel[2+dy][2+dx]"}
-    nl = effects["classical_nonlinearity"]
-    if nl.get("measured"):
-        out["classical_nonlinearity"] = {"beta": nl["beta"], "error": nl["error"],
-                                         "detected": nl.get("detected"), "units": "1/electron",
-                                         "form": "M = Q - beta Q^2"}
-    if fit.get("band"):
-        out["law_band"] = {**fit["band"], "method": "delete-a-fold jackknife of the chosen "
-                           "form fitted without each fold; 1 sigma",
-                           "held_outside": fit.get("held_outside")}
-    if effects["gain"].get("measured") is not None:
-        out["gain"] = effects["gain"]
-    return out
-
-
-def _input_record(f, role):
-    return {"file": f.label, "role": role, "layout": f.meta.get("layout"),
-            "layout_reason": f.meta.get("layout_reason"), "units": f.units,
-            "units_note": f.meta.get("units_note"), "dq_note": f.meta.get("dq_note"),
-            "shape": list(f.data.shape)}
