@@ -19,6 +19,7 @@ from ..errors import IPCInputError
 from ..laws import ParametricLaw, get_law
 from .diagnostics import UNEXPLAINED_Z
 from .forms import (
+    BF_STEPS,
     LAW_SCALE_DIFF,
     LAW_SCALE_LEVEL,
     NL_REFERENCE,
@@ -48,7 +49,7 @@ __all__ = ["Param", "Effect", "EFFECTS", "EFFECT_NAMES", "SEPARATION", "DEGENERA
            "diffuse", "diffusion_weights", "brighter_fatter", "nonlinearity", "reciprocity",
            "shift_scene", "derived_params", "contradiction", "implausible", "bf_kernel",
            "brighter_fatter_section", "PHYSICAL_LIMITS", "SHIFT_ANTISYMMETRY",
-           "NL_REFERENCE", "BF_REFERENCE",
+           "NL_REFERENCE", "BF_REFERENCE", "BF_STEPS",
            "RECIPROCITY_REFERENCE", "LAW_SCALE_DIFF", "LAW_SCALE_LEVEL"]
 
 
