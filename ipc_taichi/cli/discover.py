@@ -129,20 +129,17 @@ def run_discover(args):
 
 
 def _parse_effects(items):
-    from ..discover.effects import EFFECT_NAMES
+    from ..discover.effects import EFFECTS
 
     effects = {}
     for item in items:
         name, eq, value = item.partition("=")
         name = name.strip()
-        if not eq or name not in EFFECT_NAMES:
+        if not eq or name not in EFFECTS:
             raise IPCInputError(f"--effect {item!r}: expected NAME=VALUE with NAME one of "
-                                f"{', '.join(EFFECT_NAMES)}")
-        if name == "signal_dependent_ipc":
-            effects[name] = value.strip()
-            continue
+                                f"{', '.join(EFFECTS)}")
         try:
-            effects[name] = float(value)
+            effects[name] = EFFECTS[name].parse(value)
         except ValueError:
             raise IPCInputError(f"--effect {item!r}: {value!r} is not a number") from None
     return effects

@@ -27,7 +27,7 @@ from .diagnostics import (
     stacked_windows,
     valid_mask,
 )
-from .model import SUBPIXEL_EFFECTS
+from .effects import EFFECTS
 from .sampling import block_sum, isolated_points
 
 __all__ = ["PairBlocks", "Block", "deviance"]
@@ -164,9 +164,9 @@ class PairBlocks:
     def inputs(self, model):
         """Per block what ``model`` is given, ``(scene, oversample)``: the
         sub-pixel SCENE only when the model has an effect that uses it
-        (:data:`~.model.SUBPIXEL_EFFECTS`); otherwise the pixels' totals, the
+        (:attr:`~.record.Effect.subpixel`); otherwise the pixels' totals, the
         same numbers at a 25th of the work for ``N = 5``."""
-        if not SUBPIXEL_EFFECTS & set(model.effects):
+        if not any(EFFECTS[e].subpixel for e in model.effects):
             return [(b.scenes, 1) for b in self.blocks]
         return [(b.source, b.oversample) for b in self.blocks]
 

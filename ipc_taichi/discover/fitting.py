@@ -23,13 +23,15 @@ from scipy.optimize import least_squares, minimize
 from ..errors import GeometryError, LawError
 from .blocks import PairBlocks
 from .diagnostics import gap
-from .effects import DEGENERATE, EFFECTS, contradiction, derived_params, implausible
-from .model import DetectorModel, is_constant_law
+from .effects import EFFECTS, contradiction, implausible
+from .model import DetectorModel, noise_terms
+from .pairs import DEGENERATE
 
 __all__ = ["FitResult", "Trial", "Joined", "fit_parameters", "fit_noise", "refit_all", "prune",
            "fit_candidate", "join", "full_evidence", "params_report", "sds_of", "chi2_of",
            "candidates", "partners", "is_noise_effect", "only_with_smooth_light",
-           "bf_refused", "judged_without_spots", "EVIDENCE_THRESHOLD", "FRAGILE", "WITHOUT_SPOTS"]
+           "spots_refused", "judged_without_spots", "EVIDENCE_THRESHOLD", "FRAGILE",
+           "WITHOUT_SPOTS"]
 
 EVIDENCE_THRESHOLD = 25.0  # delta BIC; null simulations give < 0 (see docs/discover.md)
 # what an effect that only_with_smooth_light finds is (the report's words for it)
@@ -155,16 +157,15 @@ def fit_noise(frames, model, keys, parts):
     specs = [_spec(k) for k in keys]
     scale = np.array([p.scale for p in specs])
     bounds = [(p.lower / s, p.upper / s) for p, s in zip(specs, scale)]
-    base_read = model.read_variance() - float(
-        model.effects.get("excess_read_noise", {}).get("excess_variance_e2", 0.0))
+    base_read = model.read_variance() - noise_terms(model.effects)[1]
     x0 = np.array([model.effects[e][n] for e, n in keys]) / scale
 
     def dev(z):
-        x = dict(zip(keys, z * scale))
-        u = x.get(("flat_field", "response_variance"), model.response_variance())
-        e = x.get(("excess_read_noise", "excess_variance_e2"),
-                  model.read_variance() - base_read)
-        return frames.deviance(model, parts, u, max(base_read + e, 1e-6))
+        effects = {e: dict(p) for e, p in model.effects.items()}
+        for (e, n), value in zip(keys, z * scale):
+            effects[e][n] = value
+        u, extra = noise_terms(effects)
+        return frames.deviance(model, parts, u, max(base_read + extra, 1e-6))
 
     best = minimize(dev, x0, method="L-BFGS-B", bounds=bounds)
     z = best.x
@@ -207,7 +208,7 @@ def candidates(model):
     for name in EFFECTS:
         if name in model.effects:
             continue
-        if name == "signal_dependent_ipc" and not is_constant_law(model.law):
+        if not EFFECTS[name].offered(model.law):
             continue
         out.append(name)
     return out
@@ -313,19 +314,17 @@ def only_with_smooth_light(frames, model, threshold=EVIDENCE_THRESHOLD):
     has no shift (the two pictures are then the same model). The report's
     words for such an effect are :data:`FRAGILE`.
     """
-    if "misregistration" not in model.effects or all(b.oversample > 1 for b in frames.blocks):
+    if not any(EFFECTS[e].picture_dependent for e in model.effects) \
+            or all(b.oversample > 1 for b in frames.blocks):
         return []
     uniform = refit_all(frames, replace(model, within_pixel="uniform")).model
     return prune(frames, uniform, threshold)[1]
 
 
 def params_report(result, effect, readnoise=None):
-    keys = [k for k in result.keys if k[0] == effect]
-    params = {n: result.values[(e, n)] for e, n in keys}
-    errors = {n: result.errors[(e, n)] for e, n in keys}
-    idx = [result.keys.index(k) for k in keys]
-    extra, extra_err = derived_params(effect, params, cov=result.cov[np.ix_(idx, idx)],
-                                      readnoise=readnoise)
+    record = EFFECTS[effect]
+    params, errors, cov = record.own(result)
+    extra, extra_err = record.derived(params, cov=cov, readnoise=readnoise)
     params.update(extra)
     errors.update(extra_err)
     return params, errors
@@ -373,25 +372,29 @@ def fit_candidate(frames, model, name, parts, sds, chi2_now, dev_now, ln_n):
     return Trial(delta - k * ln_n, delta, k, fit)
 
 
-def bf_refused(fit):
-    """Why the ``brighter_fatter`` of a fit (a :class:`FitResult`) contradicts the
-    effect or lies outside its physical range (its kernel judged with the fit's
-    covariance, :func:`~.effects.implausible`); ``None`` when it holds or is absent."""
-    name = "brighter_fatter"
-    params = fit.model.effects.get(name)
-    if params is None:
-        return None
-    keys = [(name, p.name) for p in EFFECTS[name].params]
-    cov = None
-    if all(k in fit.keys for k in keys):
-        idx = [fit.keys.index(k) for k in keys]
-        cov = fit.cov[np.ix_(idx, idx)]
-    return contradiction(name, params) or implausible(name, params, None, cov)
+def spots_refused(fit):
+    """Why an effect of a fit (a :class:`FitResult`) judged again without the
+    single-pixel sources (:attr:`~.record.Effect.spots_aside`: brighter-fatter)
+    contradicts the effect or lies outside its physical range (judged with the
+    fit's covariance, :func:`~.effects.implausible`); ``None`` when each holds or
+    none is there."""
+    for name, params in fit.model.effects.items():
+        if not EFFECTS[name].spots_aside:
+            continue
+        keys = [(name, p.name) for p in EFFECTS[name].params]
+        cov = None
+        if all(k in fit.keys for k in keys):
+            idx = [fit.keys.index(k) for k in keys]
+            cov = fit.cov[np.ix_(idx, idx)]
+        why = contradiction(name, params) or implausible(name, params, None, cov)
+        if why:
+            return why
+    return None
 
 
 def judged_without_spots(frames, model, trial, sds, chi2_now, ln_n):
     """A candidate's :class:`Trial` whose fit leaves ``brighter_fatter``
-    refused (:func:`bf_refused`), fitted again without the pixel-total SCENEs'
+    refused (:func:`spots_refused`), fitted again without the pixel-total SCENEs'
     single-pixel sources (:meth:`~.blocks.PairBlocks.without_single_pixel_sources`):
     the boundary-shift picture takes each pixel's light as uniform across it,
     and a spot whose light lies at its pixel's centre (a pinhole, a point-like
@@ -405,7 +408,7 @@ def judged_without_spots(frames, model, trial, sds, chi2_now, ln_n):
     :data:`WITHOUT_SPOTS`. The trial itself comes back when nothing can be
     taken out or the effect is refused there too.
     """
-    if not bf_refused(trial.fit):
+    if not spots_refused(trial.fit):
         return trial
     masked = frames.without_single_pixel_sources()
     if masked is None:
@@ -413,7 +416,7 @@ def judged_without_spots(frames, model, trial, sds, chi2_now, ln_n):
     start = model.with_effects({e: (model.starting_params(e) if e not in model.effects
                                     else model.effects[e]) for e, _ in trial.fit.keys})
     fit = fit_parameters(masked, start, trial.fit.keys, sds_of(start, masked.predict(start)))
-    if bf_refused(fit):
+    if spots_refused(fit):
         return trial
     fit = replace(fit, picture=WITHOUT_SPOTS)
     delta = chi2_now - chi2_of(frames, fit.model, sds)
@@ -426,13 +429,13 @@ def _refit_judged(frames, model):
     without them when it holds there (:func:`judged_without_spots`). Returns
     the fit and the blocks it was made on."""
     refit = refit_all(frames, model)
-    if not bf_refused(refit):
+    if not spots_refused(refit):
         return refit, frames
     masked = frames.without_single_pixel_sources()
     if masked is None:
         return refit, frames
     alt = refit_all(masked, model)
-    if bf_refused(alt):
+    if spots_refused(alt):
         return refit, frames
     return replace(alt, picture=WITHOUT_SPOTS), masked
 

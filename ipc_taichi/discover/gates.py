@@ -27,17 +27,16 @@ import numpy as np
 from ..errors import IPCInputError
 from .blocks import PairBlocks
 from .diagnostics import UNEXPLAINED_Z, dipoles, residuals_by_probe
-from .effects import EFFECTS, contradiction, implausible
-from .fitting import FRAGILE, chi2_of, is_noise_effect, params_report, sds_of
+from .effects import EFFECTS, SHIFT_ANTISYMMETRY, contradiction, implausible
+from .fitting import FRAGILE, chi2_of, is_noise_effect, sds_of
 
 __all__ = ["gate", "nameable", "choose", "refit_gate", "refusal", "refuse_noiseless",
            "is_complete", "Refusal", "signature", "noise_mean_z", "flat_interior_z",
            "mean_misfit", "shift_antisymmetry", "scatters_below_floor", "SIGNATURE_Z2",
            "SHIFT_ANTISYMMETRY", "ALTERNATIVE_RATIO", "MIN_EXPLAINED_FRACTION",
-           "COMPLETE_SIGMAS"]
+           "COMPLETE_SIGMAS", "Evidence"]
 
 SIGNATURE_Z2 = 25.0  # an effect's own signature must be 5 sigma (see signature)
-SHIFT_ANTISYMMETRY = 1.0  # halfway between a blur (0) and a shift (2): shift_antisymmetry
 ALTERNATIVE_RATIO = 0.5  # misregistration first from half the best evidence (see choose)
 MIN_EXPLAINED_FRACTION = 0.25  # a step must remove this share of the gap's excess
 COMPLETE_SIGMAS = 3.0  # complete: final gap within this many floor scatters of the floor
@@ -49,22 +48,12 @@ def signature(name, fit):
     A rescaled coupling (``weight_horizontal = weight_vertical != 1``, or a
     constant law with a new floor) would otherwise pass for anisotropy or
     signal dependence whenever anything adds nearest-neighbour charge (e.g.
-    diffusion). The signature is the anisotropy for ``anisotropic_ipc``, the
-    two amplitudes jointly for ``signal_dependent_ipc``; for the other
-    effects the evidence itself is the signature.
+    diffusion). The signature is each record's
+    (:meth:`~.record.Effect.signature`): the anisotropy for
+    ``anisotropic_ipc``, the two amplitudes jointly for
+    ``signal_dependent_ipc``; for the other effects the evidence itself.
     """
-    if name == "anisotropic_ipc":
-        params, errors = params_report(fit, name)
-        sigma = errors["anisotropy"]
-        return (params["anisotropy"] / sigma) ** 2 if sigma > 0 else math.inf
-    if name == "signal_dependent_ipc":
-        idx = [fit.keys.index((name, "amp_diff")), fit.keys.index((name, "amp_level"))]
-        a = np.array([fit.values[fit.keys[i]] for i in idx])
-        try:
-            return float(a @ np.linalg.solve(fit.cov[np.ix_(idx, idx)], a))
-        except np.linalg.LinAlgError:
-            return 0.0
-    return math.inf
+    return EFFECTS[name].signature(fit)
 
 
 def noise_mean_z(frames, model, parts, name):
@@ -77,8 +66,7 @@ def noise_mean_z(frames, model, parts, name):
         var = np.maximum(var, 1e-12)
         r = (m - mean) / np.sqrt(var)
         # where the effect's variance is a large share of the total
-        w = (1.0 / var) if name == "excess_read_noise" else (a * a / var)
-        w = np.where(v, w / var.mean() if name == "excess_read_noise" else w, 0.0)
+        w = np.where(v, EFFECTS[name].noise_weight(var, a), 0.0)
         num += float(np.sum(w * r))
         # the residuals' own scatter: a variance excess inflates it, and a
         # z in units of the model's variance would then flag noise as a signal
@@ -130,6 +118,25 @@ def _own_cov(fit, name):
     return fit.cov[np.ix_(idx, idx)]
 
 
+@dataclass(frozen=True)
+class Evidence:
+    """What a record's :meth:`~.record.Effect.refuted` may ask of the data in
+    :func:`gate`: the frames, the current model, its prediction and the masks."""
+
+    frames: object
+    model: object
+    parts: list
+    masks: list
+
+    def flat_interior_z(self):
+        """:func:`flat_interior_z` of the current model."""
+        return flat_interior_z(self.frames, self.model, self.parts, self.masks)
+
+    def antisymmetry(self, trial, name):
+        """:func:`shift_antisymmetry` of effect ``name``'s fitted ``trial``."""
+        return shift_antisymmetry(self.frames, self.model, self.parts, trial, name)
+
+
 def gate(frames, model, parts, trials, probes, masks):
     """Why each fitted candidate may not be named: ``{effect: reason}``.
 
@@ -169,19 +176,11 @@ def gate(frames, model, parts, trials, probes, masks):
                 contradicting[n] = (f"a variance excess, but the mean is mis-modelled where "
                                     f"it acts ({where}: {zm:+.1f} standard errors): a variance "
                                     "effect would absorb a wrong mean")
-    if "flat_field" in trials and "flat_field" not in contradicting:
-        z = flat_interior_z(frames, model, parts, masks)
-        if z < UNEXPLAINED_Z:
-            contradicting["flat_field"] = (
-                f"a response map, but flat areas show no variance excess ({z:+.1f} sigma): "
-                "the excess sits at sources and edges")
-    if "misregistration" in trials and "misregistration" not in contradicting:
-        ratio = shift_antisymmetry(frames, model, parts, trials["misregistration"])
-        if not ratio >= SHIFT_ANTISYMMETRY:  # a blur can pass for a spline shift
-            contradicting["misregistration"] = (
-                f"a shift, but not an antisymmetric one: displaced the other way the model "
-                f"fits only {ratio:.2f} times the shift's gain worse than unshifted (a shift "
-                f"gives 2, a symmetric misfit such as a blur 0; needs {SHIFT_ANTISYMMETRY:g})")
+    check = Evidence(frames, model, parts, masks)
+    for n in sorted(trials, key=lambda n: not is_noise_effect(n)):  # variance effects first
+        why = None if n in contradicting else EFFECTS[n].refuted(check, trials[n])
+        if why:
+            contradicting[n] = why
     return contradicting
 
 
@@ -211,11 +210,11 @@ def refit_gate(fit, names, readnoise=None):
     return None
 
 
-def shift_antisymmetry(frames, model, parts, trial):
+def shift_antisymmetry(frames, model, parts, trial, name):
     """How antisymmetric the misfit a fitted shift removes is.
 
     With ``chi2(s)`` the chi-square of the model displaced by the fitted
-    shift ``s`` (``trial``, a :class:`~.fitting.Trial`) and
+    shift ``s`` (``trial``, a :class:`~.fitting.Trial`, of effect ``name``) and
     ``chi2(0)`` the current one, returns ``(chi2(-s) - chi2(s)) / (chi2(0) -
     chi2(s))``: a real shift between SCENE and MEASURED makes its mirror
     image worse than no shift by what the shift gains (2 where the misfit is
@@ -228,8 +227,8 @@ def shift_antisymmetry(frames, model, parts, trial):
     if not trial.delta > 0:
         return 0.0
     fit = trial.fit
-    shift = fit.model.effects["misregistration"]
-    mirror = fit.model.with_effects({"misregistration": {k: -v for k, v in shift.items()}})
+    shift = fit.model.effects[name]
+    mirror = fit.model.with_effects({name: {k: -v for k, v in shift.items()}})
     sds = sds_of(model, parts)
     return (chi2_of(frames, mirror, sds) - fit.chi2) / trial.delta
 
@@ -250,10 +249,10 @@ def choose(trials, named, threshold):
     so it goes first (a much stronger candidate means the dipoles are the
     leftovers of a mis-modelled effect)."""
     best = max(named or trials, key=lambda n: trials[n].evidence)
-    shift = named.get("misregistration")
-    if shift is not None and shift.evidence > max(threshold,
-                                                  ALTERNATIVE_RATIO * trials[best].evidence):
-        return "misregistration"
+    for name, trial in named.items():
+        if EFFECTS[name].first and trial.evidence > max(
+                threshold, ALTERNATIVE_RATIO * trials[best].evidence):
+            return name
     return best
 
 

@@ -269,36 +269,16 @@ def make_scene(shape, rng, hot_fraction=0.55, source_fraction=0.35, oversample=1
 
 
 def effect_params(name, value, readnoise=None):
-    """Model parameters of a hidden effect from its ``--effect NAME=VALUE`` value.
-
-    ``diagonal_ipc`` / ``second_neighbor_ipc``: absolute coupling at zero
-    signal; ``anisotropic_ipc``: ``(h - v) / mean`` with ``h = 1 + a/2``,
-    ``v = 1 - a/2``; ``classical_nonlinearity``: deficit at 50 ke-;
-    ``brighter_fatter``: deflection at 50 ke- along x and along y, both
-    ``value`` (an isolated 50 ke- pixel loses ``value / 2`` of its charge,
-    see :func:`~.effects.brighter_fatter`); ``charge_diffusion``:
-    sigma in pixels; ``dark_current``: electrons; ``flat_field``: RMS of the
-    response map; ``reciprocity_failure``: alpha per decade;
-    ``excess_read_noise``: the true read noise (e- RMS); ``misregistration``:
-    shift along x (pixels). (``signal_dependent_ipc`` takes a law name and is
-    handled by :func:`simulate_lab`.)
+    """Model parameters of a hidden effect from its ``--effect NAME=VALUE`` value:
+    its record's :meth:`~.record.Effect.from_value` (each record's docstring
+    in :mod:`.effects` says what the value is: an absolute coupling at zero
+    signal, an anisotropy ``(h - v) / mean``, a deficit at 50 ke-, a
+    deflection at 50 ke- along x and y, sigma in pixels, electrons, the RMS
+    of the response map, alpha per decade, the true read noise in e- RMS, a
+    shift along x in pixels). ``signal_dependent_ipc`` takes a law name and is
+    handled by :func:`simulate_lab` (:meth:`~.record.Effect.hidden`).
     """
-    v = float(value)
-    return {
-        "diagonal_ipc": lambda: {"alpha_diag": v},
-        "anisotropic_ipc": lambda: {"weight_horizontal": 1.0 + v / 2,
-                                    "weight_vertical": 1.0 - v / 2},
-        "second_neighbor_ipc": lambda: {"alpha_second": v},
-        "classical_nonlinearity": lambda: {"deficit_at_50ke": v, "cubic_term": 0.0},
-        "brighter_fatter": lambda: {"deflection_x_at_50ke": v, "deflection_y_at_50ke": v,
-                                    "upwind": 0.5, "reach": 0.0},
-        "charge_diffusion": lambda: {"sigma_px": v},
-        "dark_current": lambda: {"dark_e": v},
-        "flat_field": lambda: {"response_variance": v * v},
-        "reciprocity_failure": lambda: {"alpha_per_decade": v},
-        "excess_read_noise": lambda: {"excess_variance_e2": v * v - float(readnoise) ** 2},
-        "misregistration": lambda: {"shift_y_px": 0.0, "shift_x_px": v},
-    }[name]()
+    return EFFECTS[name].from_value(value, readnoise)
 
 
 def ipclaw(law):
@@ -367,9 +347,11 @@ def simulate_lab(path, effects=None, readnoise=12.0, seed=0, law="donlon2018", p
     if start is not None:
         law = ipclaw(coupling.law)
     data_law = get_law(law)
-    if "signal_dependent_ipc" in effects:
-        data_law = get_law(effects.pop("signal_dependent_ipc"))
-    params = {name: effect_params(name, value, readnoise) for name, value in effects.items()}
+    params = {}
+    for name, value in effects.items():  # an effect may make the data's law instead
+        hidden, data_law = EFFECTS[name].hidden(value, readnoise, data_law)
+        if hidden is not None:
+            params[name] = hidden
     if start is not None:
         truth = DetectorModel(data_law, readnoise, shot_noise, {**start.effects, **params},
                               start.edge)

@@ -55,35 +55,23 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ..brighterfatter import deflection_from_kernel
 from ..detector import collect, read_noise, read_out
-from ..errors import GeometryError, IPCInputError
+from ..errors import GeometryError
 from ..geometry import Geometry
-from ..laws import ParametricLaw, get_law
-from ..model import CouplingModel
-from .effects import (
-    EFFECTS,
-    LAW_SCALE_DIFF,
-    LAW_SCALE_LEVEL,
-    NL_REFERENCE,
-    brighter_fatter,
-    diffuse,
-    nonlinearity,
-    reciprocity,
-    shift_scene,
-)
-from .sampling import block_sum, boundary_arrivals, isolated_points, shift_fine
+from ..laws import get_law
+from ..model import SECTIONS, CouplingModel
+from .effects import EFFECTS, chain_order, is_constant_law
+from .record import GEOMETRY_TERMS, Charge
+from .sampling import block_sum
 
 __all__ = ["DetectorModel", "CHAIN_ORDER", "SUBPIXEL_EFFECTS", "WITHIN_PIXEL", "is_constant_law",
-           "effects_from_document"]
+           "effects_from_document", "noise_terms"]
 
-CHAIN_ORDER = ("misregistration", "reciprocity_failure", "charge_diffusion", "dark_current",
-               "brighter_fatter", "flat_field", "shot_noise", "ipc", "classical_nonlinearity",
-               "read_noise", "excess_read_noise")
+CHAIN_ORDER = chain_order()  # the shipped vocabulary's; the report asks chain_order()
 
 # the effects that move charge by a fraction of a pixel: they use a sub-pixel
 # SCENE when there is one (every other stage works on the pixels' totals)
-SUBPIXEL_EFFECTS = frozenset({"misregistration", "charge_diffusion", "brighter_fatter"})
+SUBPIXEL_EFFECTS = frozenset(e.name for e in EFFECTS.values() if e.subpixel)
 
 # How a pixel-total SCENE's light is taken to lie within each pixel, where
 # the operators need it (``within_pixel``): "smooth" across pixels (sources
@@ -92,27 +80,6 @@ SUBPIXEL_EFFECTS = frozenset({"misregistration", "charge_diffusion", "brighter_f
 # diffusion and brighter-fatter of pixel totals take the light as uniform in
 # both; an OVERSAMP SCENE says where the light lies and ignores this.
 WITHIN_PIXEL = ("smooth", "uniform")
-
-
-def is_constant_law(law):
-    """True for a signal-independent law (``constant:A``)."""
-    return (getattr(law, "kind", "") == "parametric" and law.amp_diff == 0.0
-            and law.amp_level == 0.0)
-
-
-def _section_kernel(section, key, source):
-    """A 5x5 array of finite numbers from a model file's ``brighter_fatter`` section
-    (``None`` when the key is absent)."""
-    if section.get(key) is None:
-        return None
-    try:
-        value = np.asarray(section[key], dtype=np.float64)
-    except (TypeError, ValueError):
-        value = np.zeros(0)
-    if value.shape != (5, 5) or not np.all(np.isfinite(value)):
-        raise IPCInputError(f"{source}: brighter_fatter.{key} must be a 5x5 array of finite "
-                            f"numbers (per electron, [2+dy][2+dx])")
-    return value
 
 
 def effects_from_document(document, source="model file"):
@@ -137,34 +104,24 @@ def effects_from_document(document, source="model file"):
         A section that is not what calibrate writes (one line naming ``source``).
     """
     effects, notes = {}, {}
-    section = (document or {}).get("brighter_fatter")
-    if section is not None:
-        if not isinstance(section, dict) or section.get("units", "1/electron") != "1/electron":
-            raise IPCInputError(f"{source}: brighter_fatter must be an object with a 5x5 "
-                                "\"kernel\" in units of 1/electron")
-        kernel = _section_kernel(section, "kernel", source)
-        if kernel is None:
-            raise IPCInputError(f"{source}: brighter_fatter has no \"kernel\"")
-        converted = deflection_from_kernel(kernel, _section_kernel(section, "kernel_error",
-                                                                   source))
-        effects["brighter_fatter"] = {k: converted[k] for k in (
-            "deflection_x_at_50ke", "deflection_y_at_50ke", "upwind", "reach")}
-        notes["brighter_fatter"] = {"kernel": kernel.tolist(), "params": effects[
-            "brighter_fatter"], "not_held": converted["residual"],
-            "outside_5x5": converted["outside_5x5"],
-            "unrepresented": converted["unrepresented"], "note": converted["note"]}
-    section = (document or {}).get("classical_nonlinearity")
-    if section is not None:
-        try:
-            beta = float(section["beta"])
-        except (TypeError, KeyError, ValueError):
-            raise IPCInputError(f"{source}: classical_nonlinearity must give \"beta\" (per "
-                                "electron, M = Q - beta Q^2)") from None
-        effects["classical_nonlinearity"] = {"deficit_at_50ke": beta * NL_REFERENCE,
-                                             "cubic_term": 0.0}
-        notes["classical_nonlinearity"] = {"beta": beta,
-                                           "params": effects["classical_nonlinearity"]}
+    records = {e.section: e for e in EFFECTS.values() if e.section}
+    for key in SECTIONS:  # the file's sections in the format's order
+        section = (document or {}).get(key)
+        if key in records and section is not None:
+            name = records[key].name
+            effects[name], notes[name] = records[key].from_section(section, source)
     return effects, notes
+
+
+def noise_terms(effects):
+    """``(response variance, extra read variance)`` of ``{effect: params}``: the
+    variance effects' :meth:`~.record.Effect.response_variance` and
+    :meth:`~.record.Effect.read_variance`, summed."""
+    u = extra = 0.0
+    for name, p in effects.items():
+        u += EFFECTS[name].response_variance(p)
+        extra += EFFECTS[name].read_variance(p)
+    return float(u), float(extra)
 
 
 def _colouring(offsets):
@@ -240,13 +197,13 @@ class DetectorModel:
                                 "diagonal and second-neighbour terms (second neighbours "
                                 "equal along x and y): discover cannot start from it")
         alpha0 = float(coupling.law.alpha(0.0, 0.0))
+        terms = dict(zip(GEOMETRY_TERMS, (h, v, diag, second)))
         effects = {}
-        if (h, v) != (1.0, 1.0):
-            effects["anisotropic_ipc"] = {"weight_horizontal": h, "weight_vertical": v}
-        if diag:
-            effects["diagonal_ipc"] = {"alpha_diag": diag * alpha0}
-        if second:
-            effects["second_neighbor_ipc"] = {"alpha_second": second * alpha0}
+        for e in sorted((e for e in EFFECTS.values() if e.terms),  # the geometry's order
+                        key=lambda e: GEOMETRY_TERMS.index(e.terms[0])):
+            params = e.from_terms(terms, alpha0)
+            if params is not None:
+                effects[e.name] = params
         effects.update(effects_from_document(document)[0])
         return cls(coupling.law, readnoise, shot_noise, effects, coupling.edge)
 
@@ -259,95 +216,63 @@ class DetectorModel:
 
     def starting_params(self, name):
         """The parameter values that switch effect ``name`` on at zero strength."""
-        params = EFFECTS[name].off()
-        if name == "signal_dependent_ipc":
-            params["alpha_floor"] = float(self.law.floor)
-        return params
+        return EFFECTS[name].starting(self.law)
 
-    def _p(self, name, key):
-        return self.effects[name][key]
+    def _at(self, *stages):
+        """``[(record, params)]`` of the model's effects in these stages, in chain order."""
+        found = [(EFFECTS[n], p) for n, p in self.effects.items() if EFFECTS[n].stage in stages]
+        return sorted(found, key=lambda rp: -1.0 if rp[0].position is None else rp[0].position)
 
     # -- the coupling stage -----------------------------------------------
     def ipc_law(self):
-        """The law in use: the starting law, or the fitted signal-dependent one."""
-        if "signal_dependent_ipc" in self.effects:
-            p = self.effects["signal_dependent_ipc"]
-            return ParametricLaw(p["amp_diff"], LAW_SCALE_DIFF, p["amp_level"], LAW_SCALE_LEVEL,
-                                 p["alpha_floor"], name="fitted signal-dependent")
-        return self.law
+        """The law in use: the starting law, or the one the coupling effects make of it."""
+        law = self.law
+        for record, p in self._at("coupling"):
+            law = record.couple_law(p, law)
+        return law
 
     def geometry(self, law=None):
         """Geometry terms; absolute couplings are converted with the law's alpha(0, 0)."""
         law = law or self.ipc_law()
         alpha0 = float(law.alpha(0.0, 0.0))
-        h = v = 1.0
-        if "anisotropic_ipc" in self.effects:
-            h = self._p("anisotropic_ipc", "weight_horizontal")
-            v = self._p("anisotropic_ipc", "weight_vertical")
-        diag = second = 0.0
-        if "diagonal_ipc" in self.effects:
-            diag = self._p("diagonal_ipc", "alpha_diag") / alpha0
-        if "second_neighbor_ipc" in self.effects:
-            second = self._p("second_neighbor_ipc", "alpha_second") / alpha0
-        return Geometry.terms(horizontal=h, vertical=v, diagonal=diag, second=second)
+        terms = {"horizontal": 1.0, "vertical": 1.0, "diagonal": 0.0, "second": 0.0}
+        for record, p in self._at("coupling"):
+            record.couple_geometry(p, terms, alpha0)
+        return Geometry.terms(**terms)
 
     # -- the chain ----------------------------------------------------------
     def collected(self, scene, oversample=1):
         """Expected collected charge (steps 0-4) from the expected scene charge.
 
         With ``oversample = N > 1`` the scene is on the sub-pixel grid of
-        :mod:`.sampling` (shape ``N`` times the pixels'): the shift and the
-        diffusion act there (each sub-pixel's charge moved from where it is
-        generated, then integrated over the collecting pixels), and
-        brighter-fatter takes the charge arriving next to each boundary from
-        it; reciprocity failure acts on the pixels' totals (the sub-pixels
-        of a pixel scaled alike). The result is on the pixel grid.
+        :mod:`.sampling` (shape ``N`` times the pixels'): the effects act
+        there (:meth:`~.record.Effect.collect`) until the first that collects
+        on the pixels' totals (:attr:`~.record.Effect.on_pixels`), before which
+        the grid is summed to the pixels, each effect first taking what it
+        needs from it (:meth:`~.record.Effect.at_binning`). The result is on
+        the pixel grid.
         """
-        n = int(oversample)
-        c = np.asarray(scene, dtype=np.float64)
-        if "misregistration" in self.effects:
-            p = self.effects["misregistration"]
-            if n > 1 or self.within_pixel == "uniform":  # exact for light uniform in a cell
-                c = shift_fine(c, n * p["shift_y_px"], n * p["shift_x_px"])
-            else:  # the spline undershoots next to sharp features: no negative charge
-                c = np.clip(shift_scene(c, p["shift_y_px"], p["shift_x_px"]), 0.0, None)
-        if "reciprocity_failure" in self.effects:
-            alpha = self._p("reciprocity_failure", "alpha_per_decade")
-            if n > 1:
-                total = block_sum(c, n)
-                gain = np.divide(reciprocity(total, alpha), total, out=np.ones_like(total),
-                                 where=total > 0)
-                c = c * np.repeat(np.repeat(gain, n, axis=-2), n, axis=-1)
-            else:
-                c = reciprocity(c, alpha)
-        bf = "brighter_fatter" in self.effects
-        if "charge_diffusion" in self.effects:
-            sigma = self._p("charge_diffusion", "sigma_px")
-            if n > 1:  # a pinhole spot's light starts at its sub-pixel's centre
-                points = isolated_points(c)
-                # collected on the pixels at once, unless brighter-fatter needs the fine grid
-                m = 1 if bf else n
-                c = diffuse(c - points, n * sigma, collect=m) + (
-                    diffuse(points, n * sigma, at_centre=True, collect=m) if points.any()
-                    else 0.0)
-                n = n if bf else 1  # without brighter-fatter: already on the pixels
-            else:
-                c = diffuse(c, sigma)
-        arrivals = None
-        if n > 1:
-            if bf:
-                arrivals = {axis: boundary_arrivals(c, n, axis) for axis in (-1, -2)}
-            c = block_sum(c, n)
-        if "dark_current" in self.effects:
-            c = c + self._p("dark_current", "dark_e")
-        if "brighter_fatter" in self.effects:
-            p = self.effects["brighter_fatter"]
-            if arrivals is not None and "dark_current" in self.effects:
-                d = self._p("dark_current", "dark_e")  # dark charge arrives uniformly
-                arrivals = {a: (lo + d, hi + d) for a, (lo, hi) in arrivals.items()}
-            c = brighter_fatter(c, p["deflection_x_at_50ke"], p["deflection_y_at_50ke"],
-                                p["upwind"], p["reach"], boundary=arrivals)
-        return c
+        chain = self._at("scene", "collection")
+        charge = Charge(np.asarray(scene, dtype=np.float64), int(oversample), self.within_pixel,
+                        fine=any(record.needs_fine_grid for record, _ in chain))
+        binned = False
+        for record, p in chain:
+            if record.on_pixels and not binned:
+                self._bin(charge, chain)
+                binned = True
+            record.collect(charge, p)
+        if not binned:
+            self._bin(charge, chain)
+        return charge.value
+
+    @staticmethod
+    def _bin(charge, chain):
+        """Sum the sub-pixel grid to the pixels (after each effect's :meth:`at_binning`)."""
+        if charge.oversample > 1:
+            for record, p in chain:
+                record.at_binning(charge, p)
+            charge.value = block_sum(charge.value, charge.oversample)
+            charge.oversample = 1
 
     def readout(self, signal):
         """The node chain after collection (steps 7-8), without read noise."""
@@ -359,11 +284,16 @@ class DetectorModel:
         return CouplingModel.resolve(law, self.geometry(law), self.edge)
 
     def _response(self):
-        """The read-out response after IPC (``classical_nonlinearity``), or ``None``."""
-        if "classical_nonlinearity" not in self.effects:
-            return None
-        p = dict(self.effects["classical_nonlinearity"])
-        return lambda m: nonlinearity(m, p["deficit_at_50ke"], p["cubic_term"])
+        """The read-out response after IPC (the readout effects'), or ``None``."""
+        responses = [record.response(p) for record, p in self._at("readout")]
+        responses = [f for f in responses if f is not None]
+        if len(responses) <= 1:
+            return responses[0] if responses else None
+        def chained(m):
+            for f in responses:
+                m = f(m)
+            return m
+        return chained
 
     def expected(self, scene, oversample=1):
         """Expected measured frame (``oversample``: see :meth:`collected`)."""
@@ -371,12 +301,11 @@ class DetectorModel:
 
     def response_variance(self):
         """Variance of the per-pixel response (``flat_field``), 0 when absent."""
-        return float(self.effects.get("flat_field", {}).get("response_variance", 0.0))
+        return noise_terms(self.effects)[0]
 
     def read_variance(self):
         """Read-noise variance: ``READNOIS^2`` plus ``excess_read_noise`` (kept positive)."""
-        extra = float(self.effects.get("excess_read_noise", {}).get("excess_variance_e2", 0.0))
-        return max(float(self.readnoise) ** 2 + extra, 1e-6)
+        return max(float(self.readnoise) ** 2 + noise_terms(self.effects)[1], 1e-6)
 
     def predict_parts(self, scene, oversample=1):
         """``(mean, independent variance, response scale)`` on the pixel grid

@@ -31,14 +31,12 @@ import os
 
 import numpy as np
 
-from ..brighterfatter import isolated_loss
 from ..errors import IPCInputError
 from ..fitsio import atomic_output
 from .diagnostics import SIGNAL_BINS, UNEXPLAINED_Z
-from .effects import EFFECTS, bf_kernel
+from .effects import EFFECTS, brighter_fatter_section, chain_order
 from .fitting import params_report
 from .gates import COMPLETE_SIGMAS, MIN_EXPLAINED_FRACTION, is_complete
-from .model import CHAIN_ORDER
 
 __all__ = ["assemble", "write_report", "write_figures", "to_json", "summary_line",
            "json_diagnostics", "describe_unexplained", "brighter_fatter_section",
@@ -74,12 +72,13 @@ def assemble(setting, state, stop, baseline, final, floor):
         "unexplained": [] if complete else _unexplained(lab, state, final, floor),
         "final_model": _final_model(model, state.fit, lab.readnoise),
         "stop": None if stop is None else stop.as_dict(),
-        "brighter_fatter": _bf_report(state, setting.seeded),
+        **{e.name: _section(e, state, setting.seeded)
+           for e in EFFECTS.values() if e.reports_section},
         "seeded_from_model_file": setting.seeded,
         "evidence_threshold": {"delta_bic": setting.threshold,
                                "min_explained_fraction": MIN_EXPLAINED_FRACTION,
                                "complete_within_floor_sigmas": COMPLETE_SIGMAS},
-        "chain_order": list(CHAIN_ORDER),
+        "chain_order": list(chain_order()),
         "diagnostics": {"signal_bins": [b if b < 1e8 else None for b in SIGNAL_BINS],
                         "n_probes": int(sum(len(p) for p in setting.probes)),
                         "baseline": json_diagnostics(baseline), "final": json_diagnostics(final)},
@@ -116,22 +115,23 @@ def _final_model(model, fit, readnoise):
     return {"law": model.ipc_law().describe(), "effects": params, "uncertainties": errors}
 
 
-def _bf_report(state, seeded):
-    """The report's ``brighter_fatter`` kernel (``None`` when the final model has none)."""
-    model, fit = state.model, state.fit
-    if "brighter_fatter" not in model.effects:
+def _section(record, state, seeded):
+    """The report's section of an effect that has one (brighter-fatter: its
+    kernel), ``None`` when the final model does not hold the effect."""
+    model, fit, name = state.model, state.fit, record.name
+    if name not in model.effects:
         return None
-    params = model.effects["brighter_fatter"]
-    keys = [("brighter_fatter", p.name) for p in EFFECTS["brighter_fatter"].params]
+    params = model.effects[name]
+    keys = [(name, p.name) for p in record.params]
     cov, source = None, "the model file's kernel, as discover's parameters (not refitted)"
     if fit is not None and all(k in fit.keys for k in keys):
         idx = [fit.keys.index(k) for k in keys]
         cov = fit.cov[np.ix_(idx, idx)]
-        source = ("fitted" if any(s.effect == "brighter_fatter" for s in state.steps) else
+        source = ("fitted" if any(s.effect == name for s in state.steps) else
                   "the model file's kernel, refitted with the effects named after it")
-    elif "brighter_fatter" not in seeded:
+    elif name not in seeded:
         source = "fitted"
-    return brighter_fatter_section(params, cov, source)
+    return record.report_section(params, cov, source)
 
 
 def summary_line(report):
@@ -329,26 +329,6 @@ def _probe_figure(plt, discovery):
     return fig
 
 
-def brighter_fatter_section(params, cov=None, source="fitted"):
-    """The report's ``brighter_fatter``: the model's boundary-shift parameters as
-    the kernel ``ipc-taichi calibrate`` measures (the model file's section),
-    so a lab can compare the two (:mod:`ipc_taichi.brighterfatter`).
-
-    ``cov`` is the parameters' covariance (the effect's order) for
-    ``kernel_error``; ``source`` says where the parameters came from.
-    """
-    kernel, error = bf_kernel(params, cov)
-    return {"kernel": kernel.tolist(), "kernel_error": None if error is None else error.tolist(),
-            "units": "1/electron",
-            "convention": "pixel area 1 + sum_d a(d) Q(p+d); a[2+dy][2+dx]",
-            "params": dict(params), "source": source,
-            "isolated_loss_at_50ke": isolated_loss(kernel),
-            "picture": "the kernel of the boundary shifts for light smooth across neighbouring "
-                       "pixels, where the two pictures agree for any upwind "
-                       "(ipc_taichi.brighterfatter.kernel_from_deflection); terms beyond the "
-                       "nearest neighbours come from reach alone"}
-
-
 def json_diagnostics(d):
     def clean(a):
         return [None if not np.isfinite(v) else round(float(v), 4) for v in np.ravel(a)]
@@ -379,34 +359,15 @@ def json_diagnostics(d):
 
 # What SCENE cannot tell the model, per effect in the final model: SCENE holds
 # each pixel's integrated charge, not how the light lies within the pixel, and
-# these effects move charge by less than a pixel (measured in docs/discover.md).
-SUBPIXEL_LIMITS = {
-    "misregistration":
-        "the fitted shift moves SCENE by interpolating its pixel values, exact only for "
-        "light smooth on the pixel scale; how the light lies within a pixel is not in "
-        "SCENE (a star and a uniform 1x1 source of the same pixel values shift "
-        "differently), so without the sources' profiles no interpolation shifts stars "
-        "sharper than about 2.2 px FWHM, single-pixel events and sharp edges exactly (a "
-        "0.3 px shift of a 1.8 px FWHM star leaves 1.8 % of its peak with a spline and "
-        "with a band-limited shift alike): what remains here may be that limit of the "
-        "data, not a missing effect; a SCENE with OVERSAMP (the light on a sub-pixel grid) "
-        "lifts it",
-    "charge_diffusion":
-        "the diffusion model spreads charge generated uniformly across each pixel (right "
-        "for single-pixel events and flat areas); light that peaks inside its pixel (a "
-        "star) keeps more of it, so where the data's diffusion starts from the photons' "
-        "true positions, star centres are left above the model (sigma 0.22 px, a 1.8 px "
-        "FWHM star: the model's peak 11 % low) and SCENE cannot say which picture holds "
-        "for which pixel: what remains at star centres may be that limit of the data; a "
-        "SCENE with OVERSAMP (the light on a sub-pixel grid) lifts it",
-    "brighter_fatter":
-        "the boundary-shift picture moves the charge that arrives next to each pixel "
-        "boundary, taken as uniform across the pixel; light concentrated inside its pixel "
-        "(a pinhole spot, a star's core) arrives mostly away from the boundaries and is "
-        "moved less, and SCENE does not say where it lies: what remains at hot pixels and "
-        "star centres may be that limit of the data; a SCENE with OVERSAMP (the light on a "
-        "sub-pixel grid) lifts it",
-}
+# these effects move charge by less than a pixel (measured in docs/discover.md):
+# each record's own words (Effect.subpixel), as shipped.
+SUBPIXEL_LIMITS = {e.name: e.subpixel for e in EFFECTS.values() if e.subpixel}
+
+
+def _moves_within(name):
+    """Whether effect ``name`` moves charge by a fraction of a pixel (its
+    :attr:`~.record.Effect.subpixel` words say what SCENE cannot tell it)."""
+    return bool(getattr(EFFECTS.get(name), "subpixel", ""))
 
 
 def describe_unexplained(d, rejected=(), effects=(), pixel_totals=None, n_pairs=None,
@@ -453,8 +414,8 @@ def describe_unexplained(d, rejected=(), effects=(), pixel_totals=None, n_pairs=
         which = "" if pixel_totals is None or len(pixel_totals) == n_pairs else (
             " (pairs whose SCENE holds pixel totals, EXTVER "
             + ", ".join(str(v) for v in pixel_totals) + ")")
-        out += [f"{name} is in the model, but {SUBPIXEL_LIMITS[name]}{which}"
-                for name in effects if name in SUBPIXEL_LIMITS]
+        out += [f"{name} is in the model, but {EFFECTS[name].subpixel}{which}"
+                for name in effects if _moves_within(name)]
     var_bad = ok & (z_var > UNEXPLAINED_Z) & (np.abs(z_mean) < np.maximum(3.0, 0.3 * z_var))
     if var_bad.any():
         lo, hi = centres[var_bad].min(), centres[var_bad].max()
@@ -482,7 +443,7 @@ def describe_unexplained(d, rejected=(), effects=(), pixel_totals=None, n_pairs=
         # totals, may be absorbing where the light lies: say what would tell
         hint = ("; its fit from pixel-total SCENEs may absorb how the light lies within "
                 "each pixel (it moves charge by a fraction of a pixel): a SCENE with "
-                "OVERSAMP would let it be judged" if totals and name in SUBPIXEL_LIMITS
+                "OVERSAMP would let it be judged" if totals and _moves_within(name)
                 and "pixel-total" not in why else "")
         out.append(f"not named {name}: {why}{hint}")
     if not out:

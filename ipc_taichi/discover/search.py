@@ -7,7 +7,7 @@ Procedure (:func:`discover`)
 2. For every effect of the vocabulary not yet in the model, fit its
    parameters starting "off", the rest of the model fixed except the
    parameters of effects already in the model that are near-degenerate with
-   it (:data:`~.effects.DEGENERATE`: diffusion and brighter-fatter,
+   it (:data:`~.pairs.DEGENERATE`: diffusion and brighter-fatter,
    anisotropy and diagonal coupling, ...), which are refitted jointly.
    Effects that change the mean are fitted by least squares with the
    current model's variance held fixed; effects that change only the noise
@@ -58,7 +58,6 @@ import numpy as np
 from ..model import CouplingModel
 from .blocks import PairBlocks
 from .diagnostics import gap
-from .effects import SEPARATION
 from .fitting import (
     EVIDENCE_THRESHOLD,
     FRAGILE,
@@ -75,6 +74,7 @@ from .fitting import (
 from .gates import ALTERNATIVE_RATIO, choose, gate, nameable, refusal, refuse_noiseless
 from .labdata import LabData, read_lab
 from .model import DetectorModel, effects_from_document
+from .pairs import SEPARATION
 from .records import Pruning, Round, Setting, State, Step, Stop
 from .report import assemble
 
