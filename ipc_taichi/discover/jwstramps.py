@@ -23,7 +23,9 @@ time), each slope first cleared of the offsets its rows and columns share
 (its departure from the pixel's median slope less that departure's row and
 column medians: those integrations' 1/f read noise must not enter
 integration ``k``'s rate): leave one out, so the rate holds none of
-integration ``k``'s noise and the gap stays a test of the model. The price: the rate's own noise
+integration ``k``'s noise and the gap stays a test of the model (a rate
+below 0, a dark pixel's noise, is set to 0: the model collects no negative
+charge, and its simulations would not match the mean). The price: the rate's own noise
 enters every residual. For a pixel with ``n`` integrations of one increment
 each, the residual's variance is ``n / (n - 1)`` times the model's (1.2 for
 the FGS file's 6; :func:`expected_gap_factor`, exact where read noise
@@ -44,7 +46,7 @@ the first and last reads into every increment, and the two nearly cancel
 (:func:`measure_read_noise`): the residual increments (less the leave-one-out
 rate; with one integration the second differences of the reads) less
 their row and column medians (what lines share is not one pixel's noise),
-their robust variance (1.4826 x MAD: hot and telegraph pixels and cosmic
+their variance within 5 robust sigmas (hot and telegraph pixels and cosmic
 rays do not count) less the shot noise at the median rate and the rate's
 own noise. Measured on the data it absorbs a white excess of the read
 noise: discovery can then only see structure.
@@ -135,15 +137,20 @@ def _less_lines(x):
 
 
 def _robust_variance(x):
+    """The variance of the values within 5 robust sigmas (1.4826 x MAD) of
+    their median: hot and telegraph pixels and cosmic rays do not count, and
+    unlike the MAD itself it is not quantised by integer data."""
     x = x[np.isfinite(x)]
-    return float((1.4826 * np.median(np.abs(x - np.median(x)))) ** 2)
+    centre = np.median(x)
+    scale = 1.4826 * np.median(np.abs(x - centre))
+    return float(np.var(x[np.abs(x - centre) <= 5.0 * scale]))
 
 
 def measure_read_noise(reads, tgroup, rates):
     """Read noise per read (e-) from ramps less their first group
     ``(nints, m, ny, nx)`` and their rates (module docstring): the residual
-    increments less what rows and columns share, their robust variance
-    (1.4826 x MAD) less the shot noise at the median rate and the rate's
+    increments less what rows and columns share, their variance within 5
+    robust sigmas less the shot noise at the median rate and the rate's
     own noise; ``None`` for one integration of one increment."""
     nints, m = reads.shape[:2]
     d = np.diff(reads, axis=1, prepend=0.0)  # increments, each with 2 reads' noise
@@ -236,6 +243,7 @@ def jwst_ramps(path, gain, tgroup=None, readnoise=None, hdu=None, exclude=None,
     for rate, ramp in zip(rates, reads):  # left out: reads NaN, SCENE 0 (simulated as dark)
         bad = ~np.isfinite(rate) | ~np.all(np.isfinite(ramp), axis=0)
         rate[bad] = 0.0
+        np.clip(rate, 0.0, None, out=rate)  # a rate below 0 is noise: the model collects none
         ramp[:, bad] = np.nan
     notes = [frames.meta.get("units_note", ""),
              f"reads: groups 1..{ngroups - 1} less group 0, TGROUP {tg:g} s",
