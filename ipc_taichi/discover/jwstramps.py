@@ -52,12 +52,16 @@ own noise. Measured on the data it absorbs a white excess of the read
 noise: discovery can then only see structure.
 """
 
+import json
 import math
 import warnings
 
 import numpy as np
 
+from ..calibrate.inputs import read_frames
 from ..errors import IPCInputError
+from ..fitsio import atomic_output
+from ..model import CouplingModel
 from .ramps import write_ramps
 
 __all__ = ["JwstRamps", "jwst_ramps", "write_jwst_ramps", "measure_read_noise",
@@ -220,8 +224,6 @@ def jwst_ramps(path, gain, tgroup=None, readnoise=None, hdu=None, exclude=None,
     a subarray without reference pixels keeps it). One-line errors name the file: no TGROUP, fewer
     than 2 groups, one integration of 2 groups (its one increment would be
     its own rate), a box outside the frame."""
-    from ..calibrate.inputs import read_frames
-
     frames = read_frames(path, hdu=hdu, gain=gain)
     data = frames.data
     nints, ngroups = data.shape[:2]
@@ -291,11 +293,6 @@ def symmetric_model(model_path, output, overwrite=False):
     (:meth:`~.model.DetectorModel.from_coupling`); calibrate measures the two
     apart (on the FGS file 0.102 +- 0.111 and 0.000 +- 0.074 of alpha).
     Written through a temporary file; the result is loaded back as a check."""
-    import json
-
-    from ..fitsio import atomic_output
-    from ..model import CouplingModel
-
     with open(model_path) as f:
         doc = json.load(f)
     weights = {(int(dy), int(dx)): float(w) for dy, dx, w in doc.get("geometry", [])}

@@ -332,7 +332,9 @@ def increment_factors(reads, mean, shot, r, valid, ramp=None):
     noise, its ``scene_var`` adds ``var dt_i dt_j``; see :class:`RampPair`)."""
     d = np.diff(reads, axis=0, prepend=0.0)[:, valid]
     mu = np.diff(mean, axis=0, prepend=0.0)[:, valid]
-    var = np.diff(shot[:, valid], axis=0, prepend=0.0) + 2.0 * r
+    # shot variance only accumulates: a model whose reads fall (a non-linearity
+    # at its bound) must not make the covariance indefinite
+    var = np.clip(np.diff(shot[:, valid], axis=0, prepend=0.0), 0.0, None) + 2.0 * r
     if ramp is None or not ramp.first_subtracted:
         var[0] -= r  # read 0 follows the reset, which was removed: one read's noise
     n = len(var)
