@@ -21,6 +21,7 @@ COMMANDS = {
     "discover": ("discover", "find which detector effect the model misses: DATA.fits -> "
                              "report"),
     "simulate-lab": ("discover", "write a lab file (SCENE/MEASURED pairs) with hidden effects"),
+    "ramp-file": ("discover", "a JWST ramp (_uncal-like) as a discover ramp file: IN -> OUT.fits"),
     "calibrate": ("calibrate", "measure this detector's coupling: darks/flats/reference -> "
                                "MODEL.json"),
     "export-reference": ("export", "write a coupling model as a pipeline's IPC reference "

@@ -11,7 +11,7 @@ from ..fitsio import check_output_path
 from .commands import one_line
 from .options import add_quiet_argument, add_runtime_arguments
 
-__all__ = ["add_parsers", "run_discover", "run_simulate_lab"]
+__all__ = ["add_parsers", "run_discover", "run_simulate_lab", "run_ramp_file"]
 
 
 def add_parsers(sub):
@@ -72,6 +72,59 @@ def add_parsers(sub):
     s.add_argument("--overwrite", action="store_true", help="replace OUT.fits if it exists")
     add_runtime_arguments(s)
     s.set_defaults(run=run_simulate_lab)
+    _add_ramp_file(sub)
+
+
+def _add_ramp_file(sub):
+    r = sub.add_parser(
+        "ramp-file", help=one_line("ramp-file"),
+        description="Write a JWST ramp (SCI of integrations x groups, raw DN with the bias, "
+                    "or electrons) as a discover ramp file: each integration's groups less "
+                    "its first (FIRSTSUB), its SCENE the mean slope of the other integrations "
+                    "(SCENEVAR its variance), READNOIS given or measured (docs/discover.md, "
+                    "'Real ramps').")
+    r.add_argument("input", metavar="JWST.fits")
+    r.add_argument("output", metavar="OUT.fits")
+    r.add_argument("--gain", type=float, required=True, help="e-/DN")
+    r.add_argument("--tgroup", type=float, default=None,
+                   help="s between groups (default: the TGROUP keyword)")
+    r.add_argument("--readnoise", type=float, default=None,
+                   help="e- per read (default: measured on the same increments)")
+    r.add_argument("--exclude", action="append", default=[], metavar="Y0:Y1,X0:X1",
+                   help="leave out a box (0-based, ends excluded; repeatable): a source that "
+                        "moves between integrations")
+    r.add_argument("--remove-frame-offsets", action="store_true",
+                   help="subtract each group's median over the frame (as a reference-pixel "
+                        "step would)")
+    r.add_argument("--law", default="donlon2018", help="IPCLAW written (default donlon2018)")
+    r.add_argument("--hdu", default=None, help="science HDU (default SCI)")
+    r.add_argument("--overwrite", action="store_true", help="replace OUT.fits if it exists")
+    r.set_defaults(run=run_ramp_file)
+
+
+def _parse_box(text):
+    try:
+        rows, cols = str(text).split(",")
+        (y0, y1), (x0, x1) = (tuple(int(v) for v in part.split(":")) for part in (rows, cols))
+    except ValueError:
+        raise IPCInputError(f"--exclude {text!r}: expected Y0:Y1,X0:X1 (integers)") from None
+    return y0, y1, x0, x1
+
+
+def run_ramp_file(args):
+    from ..discover.jwstramps import write_jwst_ramps
+
+    check_output_path(args.output, args.overwrite)
+    boxes = [_parse_box(b) for b in args.exclude]
+    ramps = write_jwst_ramps(args.input, args.output, args.gain, tgroup=args.tgroup,
+                             readnoise=args.readnoise, law=args.law, overwrite=args.overwrite,
+                             hdu=args.hdu, exclude=boxes,
+                             frame_offsets=args.remove_frame_offsets)
+    for note in ramps.notes:
+        print(f"ramp-file: {note}", file=sys.stderr)
+    print(f"wrote {args.output}: {len(ramps.reads)} ramp pairs of {ramps.reads[0].shape[0]} "
+          f"reads, TFRAME {ramps.tgroup:g} s, READNOIS {ramps.readnoise:.2f} e-")
+    return 0
 
 
 def _ipclaw_written(path):
@@ -111,7 +164,10 @@ def run_discover(args):
                                                        threshold=threshold, log=say,
                                                        start=args.model))
         if args.figures:
-            print("discover: --figures is not written for ramp files yet", file=sys.stderr)
+            from ..discover.rampfigures import write_ramp_figure
+
+            path = write_ramp_figure(result.report, args.figures)
+            print(f"discover: wrote {path}", file=sys.stderr)
             args.figures = None
     else:
         result = discover(args.data, seed=args.seed, threshold=threshold, log=say,

@@ -69,7 +69,7 @@ def _parts(model, ramps):
     for k, ramp in enumerate(ramps):
         mean, shot, r = expected_reads(model, ramp, model.afterglow(ramps, k))
         valid = model.valid(ramp)
-        chol, _, _ = increment_factors(ramp.reads, mean, shot, r, valid)
+        chol, _, _ = increment_factors(ramp.reads, mean, shot, r, valid, ramp)
         parts.append((chol, np.diff(ramp.reads, axis=0, prepend=0.0)[:, valid], valid))
     return parts
 

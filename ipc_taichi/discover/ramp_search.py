@@ -87,7 +87,7 @@ def _cholesky(model, ramps, k):
     ramp = ramps[k]
     mean, shot, r = expected_reads(model, ramp)
     valid = model.valid(ramp)
-    chol, d, var = increment_factors(ramp.reads, mean, shot, r, valid)
+    chol, d, var = increment_factors(ramp.reads, mean, shot, r, valid, ramp)
     return chol, d, valid, var
 
 
@@ -114,7 +114,8 @@ def _fit_persistence(model, ramps):
 
     t = ramps[0].times
     duration = float(t[-1])
-    grid = np.geomspace(0.25 * (t[1] - t[0]), 40.0 * duration, 24)
+    step = float(t[1] - t[0]) if len(t) > 1 else float(t[0])  # one read: TFIRST
+    grid = np.geomspace(0.25 * step, 40.0 * duration, 24)
     gains = [solve(tau)[1] for tau in grid]
     i = int(np.argmax(gains))
     lo, hi = grid[max(i - 1, 0)], grid[min(i + 1, len(grid) - 1)]
@@ -143,13 +144,15 @@ def _fit_shared_noise(model, ramps):
             ok = count > 1
             m = full.sum(axis=axis)[:, ok] / count[ok]
             v = vfull.sum(axis=axis)[:, ok] / count[ok] ** 2
-            means.append(m[1:].ravel())  # read 0 holds one offset, the others two
-            variances.append(v[1:].ravel())
+            # read 0 holds one offset, the others two (and read 0 too when FIRSTSUB)
+            first = 0 if ramps[k].first_subtracted else 1
+            means.append(m[first:].ravel())
+            variances.append(v[first:].ravel())
             lit = np.nan_to_num(earlier_charge([ramps[k]], 0)).sum(axis=axis - 1)
             # a line and its two neighbours: a misfit at a source reaches the next line
             near = np.maximum(lit, np.maximum(np.roll(lit, 1), np.roll(lit, -1)))
             light.append(np.broadcast_to(near <= np.median(lit), (len(m),) + lit.shape)
-                         [1:][:, ok].ravel())
+                         [first:][:, ok].ravel())
         m, v, low = np.concatenate(means), np.concatenate(variances), np.concatenate(light)
         q = float(np.mean(m * m - v) / 2.0)
         params[key] = q
@@ -243,6 +246,10 @@ def _trials(model, ramps, data, ln_n, threshold, refused, say):
     return trials
 
 
+_TIME_KEYS = ("gap", "gap_per_read", "neighbour_correlation", "gap_per_read_floor",
+              "neighbour_floor")  # kept for the baseline and each step (the figures)
+
+
 def _verdict(stats):
     return {key: stats[key] for key in ("gap", "gap_floor", "gap_floor_sigma", "complete")}
 
@@ -273,6 +280,7 @@ def discover_ramps(data, seed=0, n_sim=8, threshold=THRESHOLD, max_steps=3, star
     ramps = data.ramps
     stats = ramp_gap(data, model, n_sim, seed)
     baseline, steps, refused = stats["gap"], [], {}
+    first = {key: stats[key] for key in _TIME_KEYS}
     ln_n = math.log(sum(r.valid.sum() * len(r.times) for r in ramps))
     while not stats["complete"] and len(steps) < max_steps:
         trials = _trials(model, ramps, data, ln_n, threshold, refused, say)
@@ -294,7 +302,8 @@ def discover_ramps(data, seed=0, n_sim=8, threshold=THRESHOLD, max_steps=3, star
         steps.append({"effect": best, "params": params, "evidence": evidence,
                       "evidence_kind": "delta_BIC", "gap_before": stats["gap"],
                       "gap_after": after["gap"], "explained_fraction": fraction,
-                      "floor_before": stats["gap_floor"]})
+                      "floor_before": stats["gap_floor"],
+                      **{key: after[key] for key in _TIME_KEYS}})
         say(f"added {best}: gap {stats['gap']:.4f} -> {after['gap']:.4f}")
         model, stats = newer, after
     unexplained = [] if stats["complete"] else stats["unexplained"] + [
@@ -305,6 +314,9 @@ def discover_ramps(data, seed=0, n_sim=8, threshold=THRESHOLD, max_steps=3, star
             "complete": stats["complete"], "unexplained": unexplained,
             "not_named": refused, "gap_per_read": stats["gap_per_read"],
             "neighbour_correlation": stats["neighbour_correlation"],
+            "gap_per_read_floor": stats["gap_per_read_floor"],
+            "neighbour_floor": stats["neighbour_floor"],
+            "baseline": first,
             "final_model": {"frame": model.frame.describe(), "effects": model.effects,
                             "own_level_pixels": 0 if model.odd is None
                             else int(model.odd.sum())}}

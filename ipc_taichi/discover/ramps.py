@@ -73,13 +73,22 @@ RETURN_Z = 3.0  # an odd pixel goes up and down: increments beyond this many sig
 class RampPair:
     """One ramp pair: ``rate`` (SCENE, e-/s, 2-D; ``oversample`` its
     ``OVERSAMP``), ``reads`` (MEASURED, e-, ``(NREADS, ny, nx)``) and the
-    reads' ``times`` after reset (s)."""
+    reads' ``times`` after reset (s); ``first_subtracted`` (``FIRSTSUB``): the
+    reads are differences from a read before read 0 that the file does not
+    hold (a raw ramp's first read, its bias and reset level in it), so read
+    0's increment carries that read's noise too; ``scene_var`` (the
+    ``SCENEVAR`` HDU of the same ``EXTVER``, (e-/s)^2, 2-D, or ``None``): the
+    variance of a SCENE estimated from data independent of these reads, so
+    read ``i`` holds the SCENE's error times ``t_i`` (whitened and simulated
+    with the rest)."""
 
     extver: int
     rate: np.ndarray
     reads: np.ndarray
     times: np.ndarray
     oversample: int = 1
+    first_subtracted: bool = False
+    scene_var: object = None
 
     @property
     def valid(self):
@@ -130,13 +139,15 @@ def read_ramps(path):
         raise IPCInputError(f"{path}: no such file")
     with fits.open(path, memmap=False) as hdul:
         readnoise, shot_noise, law = read_header(hdul[0].header, path)
-        scenes, ramps = {}, []
+        scenes, ramps, scene_vars = {}, [], {}
         for hdu in hdul[1:]:
             name = str(hdu.header.get("EXTNAME", "")).strip().upper()
             ver = int(hdu.header.get("EXTVER", 1))
             if name == "SCENE" and hdu.data is not None:
                 scenes[ver] = (np.asarray(hdu.data, dtype=np.float64),
                                int(hdu.header.get("OVERSAMP", 1)))
+            if name == "SCENEVAR" and hdu.data is not None:
+                scene_vars[ver] = np.asarray(hdu.data, dtype=np.float64)
         for hdu in hdul[1:]:
             name = str(hdu.header.get("EXTNAME", "")).strip().upper()
             if name != "MEASURED" or hdu.data is None or hdu.data.ndim != 3:
@@ -144,17 +155,22 @@ def read_ramps(path):
             ver = int(hdu.header.get("EXTVER", 1))
             label = f"{path}[MEASURED,{ver}]"
             reads = np.asarray(hdu.data, dtype=np.float64)
-            if reads.shape[0] < 2:
-                raise IPCInputError(f"{label}: a ramp needs at least 2 reads, got "
-                                    f"{reads.shape[0]}")
+            first = bool(hdu.header.get("FIRSTSUB", False))
+            if reads.shape[0] < (1 if first else 2):
+                raise IPCInputError(f"{label}: a ramp needs at least 2 reads (1 with FIRSTSUB"
+                                    f" = T), got {reads.shape[0]}")
             if ver not in scenes:
                 raise IPCInputError(f"{label}: unpaired: no SCENE HDU with EXTVER={ver}")
             rate, n = scenes[ver]
             if rate.ndim != 2 or rate.shape != (n * reads.shape[1], n * reads.shape[2]):
                 raise IPCInputError(f"{path}[SCENE,{ver}]: shape {rate.shape} is not OVERSAMP "
                                     f"= {n} times the reads' {reads.shape[1:]}")
+            var = scene_vars.get(ver)
+            if var is not None and (n != 1 or var.shape != reads.shape[1:]):
+                raise IPCInputError(f"{path}[SCENEVAR,{ver}]: shape {var.shape} is not the "
+                                    f"reads' {reads.shape[1:]} (or SCENE has OVERSAMP > 1)")
             ramps.append(RampPair(ver, rate, reads, read_times(hdu.header, len(reads), label),
-                                  n))
+                                  n, first, var))
     if not ramps:
         raise IPCInputError(f"{path}: no 3-D MEASURED (ramp) HDU")
     return RampData(path, readnoise, shot_noise, law, ramps)
@@ -173,9 +189,12 @@ def is_ramp_file(path):
         return False
 
 
-def write_ramps(path, ramps, readnoise, law="donlon2018", shot_noise=True, overwrite=False):
+def write_ramps(path, ramps, readnoise, law="donlon2018", shot_noise=True, overwrite=False,
+                first_subtracted=False, scene_vars=None):
     """Write ``ramps`` (``[(rate, reads, tframe), ...]``) as a lab file of ramp
-    pairs (``TFIRST = TFRAME``), through a temporary file renamed into place."""
+    pairs (``TFIRST = TFRAME``; ``FIRSTSUB`` = ``first_subtracted`` and
+    ``scene_vars`` (one 2-D array per pair, or ``None``) a ``SCENEVAR`` HDU per
+    pair, see :class:`RampPair`), through a temporary file renamed into place."""
     from astropy.io import fits
 
     hdus = [fits.PrimaryHDU()]
@@ -188,7 +207,14 @@ def write_ramps(path, ramps, readnoise, law="donlon2018", shot_noise=True, overw
         measured = fits.ImageHDU(np.asarray(reads, dtype=np.float64), name="MEASURED")
         measured.header["EXTVER"] = k
         measured.header["TFRAME"] = float(tframe)
+        if first_subtracted:
+            measured.header["FIRSTSUB"] = (True, "reads less an earlier read not in the file")
         hdus += [scene, measured]
+        if scene_vars is not None and scene_vars[k - 1] is not None:
+            var = fits.ImageHDU(np.asarray(scene_vars[k - 1], dtype=np.float64), name="SCENEVAR")
+            var.header["EXTVER"] = k
+            var.header["BUNIT"] = "(electron/s)**2"
+            hdus.append(var)
     with atomic_output(path, overwrite=overwrite) as tmp:
         fits.HDUList(hdus).writeto(tmp)
     return path
@@ -281,29 +307,46 @@ def simulate_ramp(model, ramp, rng, extra=None):
         c = c + extra
     steps = np.diff(np.concatenate([np.zeros((1,) + c.shape[1:]), c]), axis=0)
     charge = np.cumsum(collect(steps, rng if frame.shot_noise else None), axis=0)
-    out = frame.readout(charge) + read_noise(charge.shape, math.sqrt(frame.read_variance()), rng)
-    shared = model.effects.get("correlated_read_noise", {})
     n, ny, nx = charge.shape
+    m = n + 1 if ramp.first_subtracted else n  # FIRSTSUB: the read subtracted from all
+    noise = read_noise((m, ny, nx), math.sqrt(frame.read_variance()), rng)
+    shared = model.effects.get("correlated_read_noise", {})
     if shared.get("row_variance_e2", 0.0) > 0:
-        out += rng.normal(0.0, math.sqrt(shared["row_variance_e2"]), (n, ny, 1))
+        noise += rng.normal(0.0, math.sqrt(shared["row_variance_e2"]), (m, ny, 1))
     if shared.get("column_variance_e2", 0.0) > 0:
-        out += rng.normal(0.0, math.sqrt(shared["column_variance_e2"]), (n, 1, nx))
+        noise += rng.normal(0.0, math.sqrt(shared["column_variance_e2"]), (m, 1, nx))
+    if ramp.first_subtracted:
+        noise = noise[1:] - noise[:1]
+    out = frame.readout(charge) + noise
+    if ramp.scene_var is not None:  # the SCENE's own error, the same at every read
+        error = rng.normal(0.0, 1.0, (ny, nx)) * np.sqrt(np.clip(ramp.scene_var, 0.0, None))
+        out += error[None] * ramp.times[:, None, None]
     return out
 
 
-def increment_factors(reads, mean, shot, r, valid):
+def increment_factors(reads, mean, shot, r, valid, ramp=None):
     """The increments' covariance of the valid pixels (module docstring) as
     Cholesky factors ``(npix, NREADS, NREADS)``, the residual increments
-    ``(NREADS, npix)`` (measured less expected) and their variances."""
+    ``(NREADS, npix)`` (measured less expected) and their variances
+    (``ramp``: its ``first_subtracted`` gives read 0's increment two reads'
+    noise, its ``scene_var`` adds ``var dt_i dt_j``; see :class:`RampPair`)."""
     d = np.diff(reads, axis=0, prepend=0.0)[:, valid]
     mu = np.diff(mean, axis=0, prepend=0.0)[:, valid]
-    var = np.diff(shot[:, valid], axis=0, prepend=0.0) + 2.0 * r
-    var[0] -= r  # read 0 follows the reset, which was removed: one read's noise
+    # shot variance only accumulates: a model whose reads fall (a non-linearity
+    # at its bound) must not make the covariance indefinite
+    var = np.clip(np.diff(shot[:, valid], axis=0, prepend=0.0), 0.0, None) + 2.0 * r
+    if ramp is None or not ramp.first_subtracted:
+        var[0] -= r  # read 0 follows the reset, which was removed: one read's noise
     n = len(var)
     cov = np.zeros((d.shape[1], n, n))
     idx = np.arange(n)
     cov[:, idx, idx] = np.clip(var, 1e-9, None).T
     cov[:, idx[1:], idx[:-1]] = cov[:, idx[:-1], idx[1:]] = -r
+    if ramp is not None and ramp.scene_var is not None:
+        dt = np.diff(ramp.times, prepend=0.0)
+        x = np.clip(ramp.scene_var[valid], 0.0, None)
+        cov += x[:, None, None] * np.outer(dt, dt)
+        var = var + dt[:, None] ** 2 * x[None]
     return np.linalg.cholesky(cov), d - mu, var
 
 
@@ -312,9 +355,9 @@ def whiten(chol, residual):
     return np.linalg.solve(chol, residual.T[..., None])[..., 0].T
 
 
-def _whitened(reads, mean, shot, r, valid):
+def _whitened(reads, mean, shot, r, valid, ramp=None):
     """Whitened increments ``(NREADS, npix)`` of the valid pixels (module docstring)."""
-    chol, residual, _ = increment_factors(reads, mean, shot, r, valid)
+    chol, residual, _ = increment_factors(reads, mean, shot, r, valid, ramp)
     return whiten(chol, residual)
 
 
@@ -351,7 +394,7 @@ def whitened(model, ramps, k, reads=None):
     ramp = ramps[k]
     mean, shot, r = expected_reads(model, ramp, model.afterglow(ramps, k))
     valid = model.valid(ramp)
-    return _whitened(ramp.reads if reads is None else reads, mean, shot, r, valid), valid
+    return _whitened(ramp.reads if reads is None else reads, mean, shot, r, valid, ramp), valid
 
 
 def _statistics(model, ramps, reads_of):
