@@ -276,3 +276,25 @@ def test_startup_rows_measure_fresh_processes_and_the_summary_line():
                and n.endswith("with --quiet 0 lines") for n in section["notes"])
     text = render_section(section)
     assert text.startswith("## Start-up") and "| ipc-taichi --help | help |" in text
+
+
+def test_a_signal_a_library_turned_into_its_own_error_ends_as_interrupted(capsys):
+    """NumPy interrupted while importing its extension raises ImportError: the
+    run still ends with the signal's one line and code, and the same error
+    without a signal is not ours to say (raised again)."""
+    from ipc_taichi import cli
+    from ipc_taichi.interrupts import clear_stop, request_stop
+
+    request_stop(KeyboardInterrupt())
+    try:
+        assert cli._ended(ImportError("numpy._core.multiarray failed to import")) == 130
+    finally:
+        clear_stop()
+    assert capsys.readouterr().err == INTERRUPTED + "\n"
+    request_stop(cli.Terminated())
+    try:
+        assert cli._ended(RuntimeError("a library's own")) == 143
+    finally:
+        clear_stop()
+    with pytest.raises(ImportError):
+        cli._ended(ImportError("a real one"))

@@ -27,7 +27,7 @@ import warnings
 
 from .. import __version__
 from ..errors import ConvergenceWarning, DivergenceError
-from ..interrupts import check_stop, clear_stop, request_stop
+from ..interrupts import check_stop, clear_stop, request_stop, stop_requested
 from .commands import COMMANDS
 
 __all__ = ["main", "build_parser", "Terminated"]
@@ -93,6 +93,29 @@ def _show_warning(message, category, filename, lineno, file=None, line=None):
     print(f"ipc-taichi: {kind}: {message}", file=sys.stderr)
 
 
+def _ended(exc):
+    """The exit code of a run ended by ``exc``, its one line said; anything else
+    (argparse's exit, a bug's traceback) raised again. A signal comes first: a
+    library may turn the KeyboardInterrupt of a signal into an error of its own
+    (NumPy interrupted while importing its extension raises ImportError)."""
+    stop = stop_requested()
+    if isinstance(exc, Exception) and stop is not None:
+        exc = stop
+    if isinstance(exc, Terminated):
+        print("ipc-taichi: terminated (SIGTERM); unfinished outputs removed", file=sys.stderr)
+        return 128 + signal.SIGTERM
+    if isinstance(exc, KeyboardInterrupt):
+        print("ipc-taichi: interrupted; unfinished outputs removed", file=sys.stderr)
+        return 128 + signal.SIGINT
+    if isinstance(exc, DivergenceError):
+        print(f"ipc-taichi: error: {exc}", file=sys.stderr)
+        return EXIT_FAILED
+    if isinstance(exc, (ValueError, OSError, RuntimeError)):
+        print(f"ipc-taichi: error: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    raise exc
+
+
 def main(argv=None):
     """Run ``ipc-taichi`` with ``argv`` (default ``sys.argv[1:]``); return the exit code.
 
@@ -121,18 +144,8 @@ def main(argv=None):
             code = int(args.run(args) or 0)
         check_stop()  # a signal a library swallowed still ends the run as interrupted
         return code
-    except DivergenceError as exc:
-        print(f"ipc-taichi: error: {exc}", file=sys.stderr)
-        return EXIT_FAILED
-    except (ValueError, OSError, RuntimeError) as exc:
-        print(f"ipc-taichi: error: {exc}", file=sys.stderr)
-        return EXIT_USAGE
-    except Terminated:
-        print("ipc-taichi: terminated (SIGTERM); unfinished outputs removed", file=sys.stderr)
-        return 128 + signal.SIGTERM
-    except KeyboardInterrupt:
-        print("ipc-taichi: interrupted; unfinished outputs removed", file=sys.stderr)
-        return 128 + signal.SIGINT
+    except BaseException as exc:  # noqa: B036 (what is not ours to say is raised again)
+        return _ended(exc)
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
