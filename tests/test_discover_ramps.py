@@ -14,7 +14,13 @@ import numpy as np
 import pytest
 
 from ipc_taichi.discover import read_lab
-from ipc_taichi.discover.ramp_effects import ramp_contradiction, ramp_implausible
+from ipc_taichi.discover.ramp_effects import (
+    RAMP_EFFECTS,
+    RAMP_LIMITS,
+    RampEffect,
+    ramp_contradiction,
+    ramp_implausible,
+)
 from ipc_taichi.discover.ramp_search import discover_ramps
 from ipc_taichi.discover.ramps import (
     expected_reads,
@@ -23,6 +29,7 @@ from ipc_taichi.discover.ramps import (
     simulate_ramp,
     write_ramps,
 )
+from ipc_taichi.discover.record import Param
 from ipc_taichi.errors import IPCInputError
 from tests.discover_helpers import write_hdus
 from tests.independent import ramplab
@@ -185,6 +192,33 @@ def test_ramp_effect_contradictions_and_limits():
                                           10.0, 16.0)
     assert ramp_implausible("random_telegraph_noise", {"fraction": 0.2, "jump_e": 50.0},
                             10.0, 16.0)
+
+
+class _ToyRampRecord(RampEffect):
+    """A ramp record that fits a huge evidence and judges itself out of range
+    by the integration it is given: the search tries it with no other edit."""
+
+    def fit(self, model, ramps, ln_n):
+        return {"strength": 1.0}, 1e6, model, 0.75
+
+    def contradiction(self, p, extra=None):
+        return None if extra == 0.75 else f"extra {extra}"
+
+    def implausible(self, p, readnoise=None, cov=None, duration=None):
+        return f"readnoise {readnoise:g}, duration {duration:g}"
+
+
+def test_a_ramp_record_is_all_the_search_needs(tmp_path, monkeypatch):
+    toy = _ToyRampRecord("toy_ramp", "collection", (Param("strength", 0.0, 0.0, 1.0, 0.1),),
+                         "a toy")
+    monkeypatch.setitem(RAMP_EFFECTS, "toy_ramp", toy)
+    path = _ramp_file(tmp_path, 315, steps_up=(0.01, 150.0))
+    duration = float(read_ramps(path).ramps[0].times[-1])
+    report = discover_ramps(path)
+    assert report["not_named"]["toy_ramp"] == f"readnoise 10, duration {duration:g}"
+    assert "toy_ramp" not in report["missing_effects"]
+    assert RAMP_LIMITS == {"persistence": 0.05, "persistence_tau": 20.0,
+                           "correlated_read_noise": 3.0, "random_telegraph_noise": 0.05}
 
 
 def test_cli_discover_reads_a_ramp_file(tmp_path, cli):

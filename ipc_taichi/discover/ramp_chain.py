@@ -37,7 +37,6 @@ from scipy.optimize import least_squares
 
 from ..errors import GeometryError, LawError
 from .effects import EFFECTS
-from .model import is_constant_law
 from .ramps import RampModel, expected_mean, expected_reads, increment_factors, whiten
 
 __all__ = ["FITTED", "RIVALS", "offered", "fit_frame_effect", "rival_contradiction"]
@@ -55,11 +54,12 @@ _FAILED = 1e3  # whitened residual for parameters the engine rejects (a negative
 
 def offered(model):
     """The frame effects a ramp search may add to ``model`` (a
-    :class:`~.ramps.RampModel`): those not in it; ``signal_dependent_ipc``
-    only on a constant starting law, as for frames."""
+    :class:`~.ramps.RampModel`): those not in it that their records offer on
+    its law (:meth:`~.record.Effect.offered`: ``signal_dependent_ipc`` only on
+    a constant starting law, as for frames)."""
     frame = model.frame
-    return [name for name in FITTED if name not in frame.effects and (
-        name != "signal_dependent_ipc" or is_constant_law(frame.law))]
+    return [name for name in FITTED
+            if name not in frame.effects and EFFECTS[name].offered(frame.law)]
 
 
 def _parts(model, ramps):

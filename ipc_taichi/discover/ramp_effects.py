@@ -1,13 +1,17 @@
-"""The effects only ramps show: their records, physical forms, limits and
-contradictions (``docs/discovery_format.md``, "Ramps"; the frame vocabulary
-is :mod:`.effects`).
+"""The effects only ramps show: one record each (:class:`RampEffect`, the
+frame vocabulary's :class:`~.record.Effect` with its own fit), all in
+:data:`RAMP_EFFECTS`: its fit to a ramp file's increments
+(:meth:`RampEffect.fit`, what :func:`~.ramp_search.discover_ramps` tries),
+its contradiction and its physical range (``docs/discovery_format.md``,
+"Ramps"; the frame vocabulary is :mod:`.effects`).
 
 ``persistence``
     ``fraction``, ``tau_s``: charge trapped during earlier light is released
     during this integration at the rate ``fraction E exp(-t / tau) / tau``
     (e-/s), ``E`` the earlier charge of the pixel and ``t`` the time after
     reset: by read ``i`` it has added ``fraction E (1 - exp(-t_i / tau))``
-    collected electrons (coupled and shot-noisy like any charge). ``E`` is
+    collected electrons (:func:`~.ramps.released`; coupled and shot-noisy
+    like any charge). ``E`` is
     the previous ramp pair's SCENE times its last read's time (the earlier
     exposure of these pixels); for the first pair of a file, its own (the
     same light before this integration, as in a series of lab flats).
@@ -38,49 +42,250 @@ is :mod:`.effects`).
 import math
 
 import numpy as np
+from scipy.optimize import minimize_scalar
 
-from .effects import Effect, Param
+from .ramps import (
+    RAMP_UNEXPLAINED_Z,
+    RampModel,
+    earlier_charge,
+    expected_reads,
+    increment_factors,
+    released,
+    whitened,
+)
+from .record import Effect, Param
 
-__all__ = ["RAMP_EFFECTS", "released", "ramp_contradiction", "ramp_implausible",
-           "RAMP_LIMITS"]
+__all__ = ["RampEffect", "Persistence", "CorrelatedReadNoise", "RandomTelegraphNoise",
+           "RAMP_EFFECTS", "ramp_contradiction", "ramp_implausible", "RAMP_LIMITS",
+           "DARK_SHARE", "released", "earlier_charge"]
+
+DARK_SHARE = 0.5  # shared read noise: the dark lines must show this share of it
+
+
+def _cholesky(model, ramps, k):
+    """The Cholesky factors of ramp ``k``'s increments (per valid pixel), its
+    residual increments, valid mask and increment variances under ``model``
+    (no after-image)."""
+    ramp = ramps[k]
+    mean, shot, r = expected_reads(model, ramp)
+    valid = model.valid(ramp)
+    chol, d, var = increment_factors(ramp.reads, mean, shot, r, valid, ramp)
+    return chol, d, valid, var
+
+
+class RampEffect(Effect):
+    """A ramp effect's record: the frame record's fields and judging methods
+    (:meth:`contradiction` also takes ``extra``, what its fit returns for
+    the gates; :meth:`implausible` also the integration ``duration``, s)
+    and its own fit to the increments, the rest of the model fixed."""
+
+    def fit(self, model, ramps, ln_n):
+        """``(params, evidence, new model, extra)`` of the effect fitted to
+        ``ramps`` beside ``model`` (a :class:`~.ramps.RampModel`), ``extra``
+        what the gates need; ``None`` when there is nothing to fit."""
+        return None
+
+    def contradiction(self, p, extra=None):
+        return None
+
+    def implausible(self, p, readnoise=None, cov=None, duration=None):
+        return None
+
+    def added(self, model, params):
+        """``model`` with the effect at ``params``."""
+        return RampModel(model.frame, {**model.effects, self.name: params}, model.odd)
+
+
+class Persistence(RampEffect):
+    """``fraction``, ``tau_s`` (module docstring); :attr:`limit` the largest
+    ``fraction``, :attr:`tau_limit` the longest decay in integrations. The
+    fit: :mod:`.ramp_search`, step 2."""
+
+    limit = 0.05
+    tau_limit = 20.0
+
+    def fit(self, model, ramps, ln_n):
+        parts = []
+        for k in range(len(ramps)):
+            chol, d, valid, _ = _cholesky(model, ramps, k)
+            coupled = model.frame.readout(earlier_charge(ramps, k)[None])[0] - \
+                model.frame.readout(np.zeros((1,) + valid.shape))[0]
+            w0 = np.linalg.solve(chol, d.T[..., None])[..., 0]
+            parts.append((chol, w0, coupled[valid], ramps[k].times))
+
+        def solve(tau):
+            num = den = base = 0.0
+            for chol, w0, coupled, t in parts:
+                growth = np.diff(1.0 - np.exp(-t / tau), prepend=0.0)
+                g = np.linalg.solve(chol, (growth[None, :] * coupled[:, None])[..., None])[..., 0]
+                num += float(np.sum(w0 * g))
+                den += float(np.sum(g * g))
+                base += float(np.sum(w0 * w0))
+            frac = num / den if den > 0 else 0.0
+            return frac, base - (base - num * frac)
+
+        t = ramps[0].times
+        duration = float(t[-1])
+        step = float(t[1] - t[0]) if len(t) > 1 else float(t[0])  # one read: TFIRST
+        grid = np.geomspace(0.25 * step, 40.0 * duration, 24)
+        gains = [solve(tau)[1] for tau in grid]
+        i = int(np.argmax(gains))
+        lo, hi = grid[max(i - 1, 0)], grid[min(i + 1, len(grid) - 1)]
+        best = minimize_scalar(lambda x: -solve(math.exp(x))[1],
+                               bounds=(math.log(lo), math.log(hi)), method="bounded")
+        tau = math.exp(best.x)
+        frac, gain = solve(tau)
+        params = {"fraction": frac, "tau_s": tau}
+        return params, gain - len(self.params) * ln_n, self.added(model, params), None
+
+    def contradiction(self, p, extra=None):
+        if p["fraction"] <= 0:
+            return (f"a deficit where earlier light was (fraction {p['fraction']:.4g} <= 0) "
+                    "is not an after-image")
+        return None
+
+    def implausible(self, p, readnoise=None, cov=None, duration=None):
+        if p["fraction"] > self.limit:
+            return (f"{100 * p['fraction']:.1f} % of the earlier charge released (at "
+                    f"most {100 * self.limit:g} % is plausible)")
+        if duration is not None and p["tau_s"] > self.tau_limit * duration:
+            return (f"a decay time of {p['tau_s']:.3g} s, {p['tau_s'] / duration:.0f} "
+                    "integrations: a constant rate (dark current), not a decay")
+        return None
+
+
+def _line_means(model, ramps, axis):
+    """The means over each row (``axis`` 2) or column (1) of the increments'
+    residuals after read 0 (from read 0 where the first read was subtracted),
+    their variances from the pixels' own noise, and whether each line and its
+    two neighbours are dark (SCENE at or under the lines' median)."""
+    means, variances, light = [], [], []
+    for k in range(len(ramps)):
+        _, d, valid, var = _cholesky(model, ramps, k)
+        full = np.zeros((d.shape[0],) + valid.shape)
+        vfull = np.zeros_like(full)
+        full[:, valid], vfull[:, valid] = d, var
+        count = valid.sum(axis=axis - 1 if axis == 2 else 0)
+        ok = count > 1
+        m = full.sum(axis=axis)[:, ok] / count[ok]
+        v = vfull.sum(axis=axis)[:, ok] / count[ok] ** 2
+        # read 0 holds one offset, the others two (and read 0 too when FIRSTSUB)
+        first = 0 if ramps[k].first_subtracted else 1
+        means.append(m[first:].ravel())
+        variances.append(v[first:].ravel())
+        lit = np.nan_to_num(earlier_charge([ramps[k]], 0)).sum(axis=axis - 1)
+        # a line and its two neighbours: a misfit at a source reaches the next line
+        near = np.maximum(lit, np.maximum(np.roll(lit, 1), np.roll(lit, -1)))
+        light.append(np.broadcast_to(near <= np.median(lit), (len(m),) + lit.shape)
+                     [first:][:, ok].ravel())
+    return np.concatenate(means), np.concatenate(variances), np.concatenate(light)
+
+
+class CorrelatedReadNoise(RampEffect):
+    """``row_variance_e2``, ``column_variance_e2`` (module docstring);
+    :attr:`limit` the largest shared RMS in ``READNOIS``. The fit
+    (:mod:`.ramp_search`, step 2) returns as ``extra`` the dark share: for
+    the direction with the larger variance, its estimate from the dark lines
+    over that from all, ``None`` with under 8 of them (a read noise is the
+    same where no light falls); the model keeps only the positive variances."""
+
+    limit = 3.0
+
+    def fit(self, model, ramps, ln_n):
+        params, gain, dark = {}, 0.0, {}
+        for key, axis in (("row_variance_e2", 2), ("column_variance_e2", 1)):
+            m, v, low = _line_means(model, ramps, axis)
+            q = float(np.mean(m * m - v) / 2.0)
+            params[key] = q
+            dark[key] = (float(np.mean(m[low] ** 2 - v[low]) / 2.0) / q
+                         if q > 0 and low.sum() >= 8 else None)
+            if q > 0:
+                gain += float(np.sum(m * m / v - m * m / (v + 2 * q) - np.log((v + 2 * q) / v)))
+        main = max(params, key=params.get)
+        kept = {key: max(v, 0.0) for key, v in params.items()}
+        return params, gain - len(self.params) * ln_n, self.added(model, kept), dark[main]
+
+    def contradiction(self, p, extra=None):
+        if max(p["row_variance_e2"], p["column_variance_e2"]) <= 0:
+            return "rows and columns share less noise than independent pixels would"
+        if extra is not None and extra < DARK_SHARE:
+            return (f"the lines share it where light falls, not where none does (the lines "
+                    f"with no light on or next to them show {100 * extra:.0f} % of it): a "
+                    "misfit of the signal, not read noise")
+        return None
+
+    def implausible(self, p, readnoise=None, cov=None, duration=None):
+        shared = math.sqrt(max(p["row_variance_e2"], 0.0) + max(p["column_variance_e2"], 0.0))
+        if readnoise and shared > self.limit * readnoise:
+            return (f"{shared:.1f} e- shared by rows and columns, "
+                    f"{shared / readnoise:.1f} times READNOIS")
+        return None
+
+
+class RandomTelegraphNoise(RampEffect):
+    """``fraction``, ``jump_e`` (module docstring); :attr:`limit` the largest
+    share of the pixels. The fit (:mod:`.ramp_search`, step 2; ``None`` when
+    chance gives as many odd pixels) returns as ``extra`` the share of them
+    going both ways beyond 3 sigma."""
+
+    limit = 0.05
+
+    def fit(self, model, ramps, ln_n):
+        from scipy.stats import chi2, norm, poisson
+
+        odd = np.zeros(ramps[0].valid.shape, dtype=bool)
+        excess, jumps, both, total = 0.0, [], 0, 0
+        for k in range(len(ramps)):
+            w, valid = whitened(model, ramps, k)
+            per_pixel = np.sum(w * w, axis=0)
+            flag = per_pixel > chi2.isf(1e-4, w.shape[0])
+            idx = np.argwhere(valid)[flag]
+            odd[tuple(idx.T)] = True
+            excess += float(np.sum(per_pixel[flag] - w.shape[0]))
+            both += int(np.sum((w.max(axis=0) > 3.0) & (w.min(axis=0) < -3.0) & flag))
+            _, d, _, _ = _cholesky(model, ramps, k)
+            jumps += list(np.max(np.abs(d[:, flag]), axis=0))
+            total += int(valid.sum())
+        count, chance = int(odd.sum()), 1e-4 * total
+        if poisson.sf(count - 1, chance) > norm.sf(RAMP_UNEXPLAINED_Z):  # chance gives as many
+            return None
+        params = {"fraction": count / total, "jump_e": float(np.median(jumps))}
+        newer = RampModel(model.frame, {**model.effects, self.name: params},
+                          odd if model.odd is None else model.odd | odd)
+        return params, excess - count * ln_n, newer, both / max(len(jumps), 1)
+
+    def contradiction(self, p, extra=None):
+        if extra is not None and extra <= 0.5:
+            return (f"only {100 * extra:.0f} % of the pixels off the model jump both ways: "
+                    "steps that do not return (a cosmic ray, or a signal the model lacks)")
+        return None
+
+    def implausible(self, p, readnoise=None, cov=None, duration=None):
+        if p["fraction"] > self.limit:
+            return (f"{100 * p['fraction']:.1f} % of the pixels (at most "
+                    f"{100 * self.limit:g} % are a few defective pixels)")
+        return None
+
 
 RAMP_EFFECTS = {e.name: e for e in (
-    Effect("persistence", "collection",
-           (Param("fraction", 0.0, -0.05, 0.2, 0.002), Param("tau_s", 10.0, 0.01, 1e5, 1.0)),
-           "a signal left by an earlier exposure that decays during this one"),
-    Effect("correlated_read_noise", "variance",
-           (Param("row_variance_e2", 0.0, -1e4, 1e5, 1.0),
-            Param("column_variance_e2", 0.0, -1e4, 1e5, 1.0)),
-           "read noise shared between the pixels of a row or a column"),
-    Effect("random_telegraph_noise", "pixels",
-           (Param("fraction", 0.0, 0.0, 1.0, 1e-3), Param("jump_e", 0.0, -1e5, 1e5, 1.0)),
-           "pixels whose signal jumps between two levels from read to read"),
+    Persistence("persistence", "collection",
+                (Param("fraction", 0.0, -0.05, 0.2, 0.002), Param("tau_s", 10.0, 0.01, 1e5, 1.0)),
+                "a signal left by an earlier exposure that decays during this one"),
+    CorrelatedReadNoise("correlated_read_noise", "variance",
+                        (Param("row_variance_e2", 0.0, -1e4, 1e5, 1.0),
+                         Param("column_variance_e2", 0.0, -1e4, 1e5, 1.0)),
+                        "read noise shared between the pixels of a row or a column"),
+    RandomTelegraphNoise("random_telegraph_noise", "pixels",
+                         (Param("fraction", 0.0, 0.0, 1.0, 1e-3),
+                          Param("jump_e", 0.0, -1e5, 1e5, 1.0)),
+                         "pixels whose signal jumps between two levels from read to read"),
 )}
 
 # persistence: at most this fraction of the earlier charge, a decay at most this
 # many integrations long; shared read noise at most this many READNOIS; telegraph
-# pixels at most this share of the pixels
-DARK_SHARE = 0.5  # shared read noise: the dark lines must show this share of it
-RAMP_LIMITS = {"persistence": 0.05, "persistence_tau": 20.0, "correlated_read_noise": 3.0,
-               "random_telegraph_noise": 0.05}
-
-
-def earlier_charge(ramps, k):
-    """``E`` of ramp ``k`` (module docstring), electrons per pixel."""
-    source = ramps[k - 1] if k > 0 else ramps[k]
-    rate = source.rate
-    n = source.oversample
-    if n > 1:
-        rate = rate.reshape(rate.shape[0] // n, n, rate.shape[1] // n, n).sum(axis=(1, 3))
-    return np.nan_to_num(rate) * float(source.times[-1])
-
-
-def released(params, ramps, k):
-    """The persistence charge collected by each read of ramp ``k``,
-    ``fraction E (1 - exp(-t_i / tau))``, ``(NREADS, ny, nx)``."""
-    t = ramps[k].times
-    growth = 1.0 - np.exp(-t / max(float(params["tau_s"]), 1e-6))
-    return float(params["fraction"]) * earlier_charge(ramps, k)[None] * growth[:, None, None]
+# pixels at most this share of the pixels (the records' limits)
+RAMP_LIMITS = {**{e.name: e.limit for e in RAMP_EFFECTS.values()},
+               "persistence_tau": Persistence.tau_limit}
 
 
 def ramp_contradiction(name, params, extra=None):
@@ -88,40 +293,10 @@ def ramp_contradiction(name, params, extra=None):
     for telegraph noise the share of its pixels whose increments go both
     ways, for shared read noise the share of it the dark lines show (a read
     noise is the same where no light falls)."""
-    if name == "persistence" and params["fraction"] <= 0:
-        return (f"a deficit where earlier light was (fraction {params['fraction']:.4g} <= 0) "
-                "is not an after-image")
-    if name == "correlated_read_noise" and max(params["row_variance_e2"],
-                                               params["column_variance_e2"]) <= 0:
-        return "rows and columns share less noise than independent pixels would"
-    if name == "correlated_read_noise" and extra is not None and extra < DARK_SHARE:
-        return (f"the lines share it where light falls, not where none does (the lines with "
-                f"no light on or next to them show {100 * extra:.0f} % of it): a misfit of the "
-                "signal, not read noise")
-    if name == "random_telegraph_noise" and extra is not None and extra <= 0.5:
-        return (f"only {100 * extra:.0f} % of the pixels off the model jump both ways: "
-                "steps that do not return (a cosmic ray, or a signal the model lacks)")
-    return None
+    return RAMP_EFFECTS[name].contradiction(params, extra)
 
 
 def ramp_implausible(name, params, readnoise, duration):
     """Why ``params`` lie outside the physical range of ramp effect ``name``
     (:data:`RAMP_LIMITS`; ``duration`` the integration, s), or ``None``."""
-    if name == "persistence":
-        if params["fraction"] > RAMP_LIMITS["persistence"]:
-            return (f"{100 * params['fraction']:.1f} % of the earlier charge released (at "
-                    f"most {100 * RAMP_LIMITS['persistence']:g} % is plausible)")
-        if params["tau_s"] > RAMP_LIMITS["persistence_tau"] * duration:
-            return (f"a decay time of {params['tau_s']:.3g} s, {params['tau_s'] / duration:.0f} "
-                    "integrations: a constant rate (dark current), not a decay")
-    if name == "correlated_read_noise":
-        shared = math.sqrt(max(params["row_variance_e2"], 0.0)
-                           + max(params["column_variance_e2"], 0.0))
-        if readnoise and shared > RAMP_LIMITS["correlated_read_noise"] * readnoise:
-            return (f"{shared:.1f} e- shared by rows and columns, "
-                    f"{shared / readnoise:.1f} times READNOIS")
-    if name == "random_telegraph_noise" and \
-            params["fraction"] > RAMP_LIMITS["random_telegraph_noise"]:
-        return (f"{100 * params['fraction']:.1f} % of the pixels (at most "
-                f"{100 * RAMP_LIMITS['random_telegraph_noise']:g} % are a few defective pixels)")
-    return None
+    return RAMP_EFFECTS[name].implausible(params, readnoise, duration=duration)

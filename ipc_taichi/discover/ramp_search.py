@@ -36,8 +36,8 @@ Procedure (:func:`discover_ramps`)
 
 3. A candidate is named when its evidence passes the threshold (25), its fit
    does not contradict the effect and lies inside its physical range
-   (:func:`~.ramp_effects.ramp_contradiction`,
-   :func:`~.ramp_effects.ramp_implausible`), and once added it removes at
+   (:meth:`~.ramp_effects.RampEffect.contradiction`,
+   :meth:`~.ramp_effects.RampEffect.implausible`), and once added it removes at
    least 25 % of the gap's excess over the floor and does not leave the gap
    more than 3 floor scatters below its floor (the frames' rules). The
    strongest such one is added; the search repeats until the gap lies within
@@ -50,29 +50,12 @@ coupling-model file (``start``) or not at all.
 
 import math
 
-import numpy as np
-from scipy.optimize import minimize_scalar
-
 from ..model import CouplingModel
 from .effects import contradiction, implausible
 from .model import DetectorModel
 from .ramp_chain import fit_frame_effect, offered, rival_contradiction
-from .ramp_effects import (
-    RAMP_EFFECTS,
-    earlier_charge,
-    ramp_contradiction,
-    ramp_implausible,
-)
-from .ramps import (
-    RAMP_UNEXPLAINED_Z,
-    RampData,
-    RampModel,
-    expected_reads,
-    increment_factors,
-    ramp_gap,
-    read_ramps,
-    whitened,
-)
+from .ramp_effects import RAMP_EFFECTS
+from .ramps import RampData, RampModel, ramp_gap, read_ramps
 
 __all__ = ["discover_ramps", "fit_ramp_effect"]
 
@@ -80,138 +63,11 @@ THRESHOLD = 25.0  # delta BIC, as for frames
 MIN_EXPLAINED_FRACTION = 0.25
 
 
-def _cholesky(model, ramps, k):
-    """The Cholesky factors of ramp ``k``'s increments (per valid pixel), its
-    residual increments, valid mask and increment variances under ``model``
-    (no after-image)."""
-    ramp = ramps[k]
-    mean, shot, r = expected_reads(model, ramp)
-    valid = model.valid(ramp)
-    chol, d, var = increment_factors(ramp.reads, mean, shot, r, valid, ramp)
-    return chol, d, valid, var
-
-
-def _fit_persistence(model, ramps):
-    """``(params, delta chi^2)`` of the after-image (module docstring)."""
-    parts = []
-    for k in range(len(ramps)):
-        chol, d, valid, _ = _cholesky(model, ramps, k)
-        coupled = model.frame.readout(earlier_charge(ramps, k)[None])[0] - \
-            model.frame.readout(np.zeros((1,) + valid.shape))[0]
-        w0 = np.linalg.solve(chol, d.T[..., None])[..., 0]
-        parts.append((chol, w0, coupled[valid], ramps[k].times))
-
-    def solve(tau):
-        num = den = base = 0.0
-        for chol, w0, coupled, t in parts:
-            growth = np.diff(1.0 - np.exp(-t / tau), prepend=0.0)
-            g = np.linalg.solve(chol, (growth[None, :] * coupled[:, None])[..., None])[..., 0]
-            num += float(np.sum(w0 * g))
-            den += float(np.sum(g * g))
-            base += float(np.sum(w0 * w0))
-        frac = num / den if den > 0 else 0.0
-        return frac, base - (base - num * frac)
-
-    t = ramps[0].times
-    duration = float(t[-1])
-    step = float(t[1] - t[0]) if len(t) > 1 else float(t[0])  # one read: TFIRST
-    grid = np.geomspace(0.25 * step, 40.0 * duration, 24)
-    gains = [solve(tau)[1] for tau in grid]
-    i = int(np.argmax(gains))
-    lo, hi = grid[max(i - 1, 0)], grid[min(i + 1, len(grid) - 1)]
-    best = minimize_scalar(lambda x: -solve(math.exp(x))[1], bounds=(math.log(lo), math.log(hi)),
-                           method="bounded")
-    tau = math.exp(best.x)
-    frac, gain = solve(tau)
-    return {"fraction": frac, "tau_s": tau}, gain
-
-
-def _fit_shared_noise(model, ramps):
-    """``(params, delta deviance, dark share)`` of noise shared by rows and by
-    columns; the dark share is, for the direction with the larger variance,
-    its estimate from the dark lines (a line and its two neighbours at or
-    under the median of the lines' SCENE) over the estimate from all, ``None``
-    with under 8 of them: a read noise is the same where no light falls."""
-    params, gain, dark = {}, 0.0, {}
-    for key, axis in (("row_variance_e2", 2), ("column_variance_e2", 1)):
-        means, variances, light = [], [], []
-        for k in range(len(ramps)):
-            _, d, valid, var = _cholesky(model, ramps, k)
-            full = np.zeros((d.shape[0],) + valid.shape)
-            vfull = np.zeros_like(full)
-            full[:, valid], vfull[:, valid] = d, var
-            count = valid.sum(axis=axis - 1 if axis == 2 else 0)
-            ok = count > 1
-            m = full.sum(axis=axis)[:, ok] / count[ok]
-            v = vfull.sum(axis=axis)[:, ok] / count[ok] ** 2
-            # read 0 holds one offset, the others two (and read 0 too when FIRSTSUB)
-            first = 0 if ramps[k].first_subtracted else 1
-            means.append(m[first:].ravel())
-            variances.append(v[first:].ravel())
-            lit = np.nan_to_num(earlier_charge([ramps[k]], 0)).sum(axis=axis - 1)
-            # a line and its two neighbours: a misfit at a source reaches the next line
-            near = np.maximum(lit, np.maximum(np.roll(lit, 1), np.roll(lit, -1)))
-            light.append(np.broadcast_to(near <= np.median(lit), (len(m),) + lit.shape)
-                         [first:][:, ok].ravel())
-        m, v, low = np.concatenate(means), np.concatenate(variances), np.concatenate(light)
-        q = float(np.mean(m * m - v) / 2.0)
-        params[key] = q
-        dark[key] = (float(np.mean(m[low] ** 2 - v[low]) / 2.0) / q
-                     if q > 0 and low.sum() >= 8 else None)
-        if q > 0:
-            gain += float(np.sum(m * m / v - m * m / (v + 2 * q) - np.log((v + 2 * q) / v)))
-    main = max(params, key=params.get)
-    return params, gain, dark[main]
-
-
-def _fit_telegraph(model, ramps):
-    """``(params, delta chi^2 less the per-pixel penalty, odd pixels, share
-    going both ways)`` of telegraph pixels; ``None`` when no more pixels lie
-    off the model than chance gives."""
-    from scipy.stats import chi2, norm, poisson
-
-    odd = np.zeros(ramps[0].valid.shape, dtype=bool)
-    excess, jumps, both, total = 0.0, [], 0, 0
-    for k in range(len(ramps)):
-        w, valid = whitened(model, ramps, k)
-        per_pixel = np.sum(w * w, axis=0)
-        flag = per_pixel > chi2.isf(1e-4, w.shape[0])
-        idx = np.argwhere(valid)[flag]
-        odd[tuple(idx.T)] = True
-        excess += float(np.sum(per_pixel[flag] - w.shape[0]))
-        both += int(np.sum((w.max(axis=0) > 3.0) & (w.min(axis=0) < -3.0) & flag))
-        _, d, _, _ = _cholesky(model, ramps, k)
-        jumps += list(np.max(np.abs(d[:, flag]), axis=0))
-        total += int(valid.sum())
-    count, chance = int(odd.sum()), 1e-4 * total
-    if poisson.sf(count - 1, chance) > norm.sf(RAMP_UNEXPLAINED_Z):  # chance gives as many
-        return None
-    params = {"fraction": count / total, "jump_e": float(np.median(jumps))}
-    return params, excess, odd, both / max(len(jumps), 1)
-
-
 def fit_ramp_effect(name, model, ramps, ln_n):
     """One ramp effect fitted to ``ramps`` beside ``model``: ``(params,
     evidence, new model, extra)`` with ``extra`` what the gates need; ``None``
-    when there is nothing to fit."""
-    if name == "persistence":
-        params, gain = _fit_persistence(model, ramps)
-        k = 2
-    elif name == "correlated_read_noise":
-        params, gain, dark = _fit_shared_noise(model, ramps)
-        k = 2
-    else:
-        found = _fit_telegraph(model, ramps)
-        if found is None:
-            return None
-        params, gain, odd, both = found
-        newer = RampModel(model.frame, {**model.effects, name: params},
-                          odd if model.odd is None else model.odd | odd)
-        return params, gain - int(odd.sum()) * ln_n, newer, both
-    kept = {key: max(v, 0.0) for key, v in params.items()} if name == "correlated_read_noise" \
-        else params
-    newer = RampModel(model.frame, {**model.effects, name: kept}, model.odd)
-    return params, gain - k * ln_n, newer, dark if name == "correlated_read_noise" else None
+    when there is nothing to fit (:meth:`~.ramp_effects.RampEffect.fit`)."""
+    return RAMP_EFFECTS[name].fit(model, ramps, ln_n)
 
 
 def _trials(model, ramps, data, ln_n, threshold, refused, say):
@@ -220,14 +76,14 @@ def _trials(model, ramps, data, ln_n, threshold, refused, say):
     above ``threshold`` go into ``refused``, with why)."""
     duration = float(ramps[0].times[-1])
     fitted = {}
-    for name in RAMP_EFFECTS:
+    for name, effect in RAMP_EFFECTS.items():
         if name in model.effects:
             continue
-        found = fit_ramp_effect(name, model, ramps, ln_n)
+        found = effect.fit(model, ramps, ln_n)
         if found is not None:
             params, evidence, newer, extra = found
-            fitted[name] = (evidence, params, newer, ramp_contradiction(name, params, extra)
-                            or ramp_implausible(name, params, data.readnoise, duration))
+            fitted[name] = (evidence, params, newer, effect.contradiction(params, extra)
+                            or effect.implausible(params, data.readnoise, duration=duration))
     for name in offered(model):
         params, evidence, newer, _ = fit_frame_effect(name, model, ramps, ln_n)
         fitted[name] = (evidence, params, newer, contradiction(name, params)

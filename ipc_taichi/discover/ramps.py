@@ -55,13 +55,12 @@ from ..errors import IPCInputError
 from ..fitsio import atomic_output
 from .labdata import read_header
 from .model import DetectorModel
-from .ramp_effects import released
 from .sampling import block_sum
 
 __all__ = ["RampPair", "RampData", "RampModel", "whitened", "read_ramps", "write_ramps",
            "is_ramp_file",
            "read_times", "expected_reads", "expected_mean", "increment_factors", "whiten",
-           "simulate_ramp", "ramp_gap", "describe_ramp_misfit",
+           "simulate_ramp", "ramp_gap", "describe_ramp_misfit", "earlier_charge", "released",
            "RAMP_UNEXPLAINED_Z"]
 
 RAMP_UNEXPLAINED_Z = 5.0  # a pattern is described when it stands out at this many sigma
@@ -220,6 +219,25 @@ def write_ramps(path, ramps, readnoise, law="donlon2018", shot_noise=True, overw
     return path
 
 
+def earlier_charge(ramps, k):
+    """``E`` of ramp ``k``, electrons per pixel: the earlier exposure an
+    after-image releases (``persistence``, :mod:`.ramp_effects`)."""
+    source = ramps[k - 1] if k > 0 else ramps[k]
+    rate = source.rate
+    n = source.oversample
+    if n > 1:
+        rate = rate.reshape(rate.shape[0] // n, n, rate.shape[1] // n, n).sum(axis=(1, 3))
+    return np.nan_to_num(rate) * float(source.times[-1])
+
+
+def released(params, ramps, k):
+    """The persistence charge collected by each read of ramp ``k``,
+    ``fraction E (1 - exp(-t_i / tau))``, ``(NREADS, ny, nx)``."""
+    t = ramps[k].times
+    growth = 1.0 - np.exp(-t / max(float(params["tau_s"]), 1e-6))
+    return float(params["fraction"]) * earlier_charge(ramps, k)[None] * growth[:, None, None]
+
+
 def _charge_scene(ramp):
     """SCENE times each read's time: the expected charge per read if nothing acted."""
     return ramp.rate[None] * ramp.times[:, None, None]
@@ -250,7 +268,7 @@ class RampModel:
 
     def afterglow(self, ramps, k):
         """The persistence charge collected by each read of ramp ``k`` (before
-        readout), ``(NREADS, ny, nx)``, or ``None`` (:func:`~.ramp_effects.released`)."""
+        readout), ``(NREADS, ny, nx)``, or ``None`` (:func:`released`)."""
         p = self.effects.get("persistence")
         if p is None:
             return None

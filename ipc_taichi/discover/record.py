@@ -14,7 +14,8 @@ conversions (from a ``--effect NAME=VALUE`` value, a coupling-model file's
 section, the starting geometry). The base class does nothing: a record
 overrides what its effect does. The records of the frame vocabulary are
 :mod:`.effects` (``docs/discover.md``, "Adding an effect", adds one); the
-ramp vocabulary's, :mod:`.ramp_effects`, use only the fields.
+ramp vocabulary's, :mod:`.ramp_effects`, are records of this kind with their
+own fit (:class:`~.ramp_effects.RampEffect`).
 
 Every parameter enters the model smoothly through its "off" value with a
 non-zero first derivative there (no form is flat at zero), and the bounds
