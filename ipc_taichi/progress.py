@@ -9,7 +9,7 @@ per iteration on a CPU).
 :class:`TerminalProgress` is the reporter the command line hands the product
 pipeline through :attr:`ipc_taichi.products.ProductOptions.progress`;
 :func:`reporters` turns it into the two hooks
-:func:`ipc_taichi.products.conventions.correct_frames` calls. A reporter is made
+:func:`ipc_taichi.products.correction.correct_frames` calls. A reporter is made
 only when stderr is a terminal and ``--quiet`` was not given
 (:func:`terminal_progress`); a bar appears only once the work has lasted
 :data:`DELAY` seconds, so a quick run prints nothing but its summary line, and

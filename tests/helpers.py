@@ -5,7 +5,8 @@
 - :func:`same`: bit-identical arrays (NaN equal to NaN), of any array kind;
 - :func:`next_to`: pixels beside masked ones;
 - :func:`write_sci`: a FITS file with a SCI extension (and more);
-- :func:`optional`: why a test of an optional dependency is skipped, and what to install.
+- :func:`optional`: why a test of an optional dependency is skipped, and what to install;
+- :func:`one_array_plan`: the product plan of one plain science array (a record's input).
 """
 
 import os
@@ -83,3 +84,21 @@ def loop_couple(s, alpha, weights):
                 if inside:
                     out[qy, qx] += flow
     return out
+
+
+def one_array_plan(model, shape=(4, 4), label="x[SCI]", edge_reason=None, pedestal_text=None):
+    """The :class:`~ipc_taichi.products.plan.ProductPlan` of one plain science
+    array in electrons (HDU 1, ``SCI``), its edge reason and pedestal text as
+    given (else as planned)."""
+    import dataclasses
+
+    from ipc_taichi.products import ProductOptions, missions
+    from ipc_taichi.products.plan import ArrayFacts, plan_product
+
+    plan = plan_product([ArrayFacts(1, "SCI", label, tuple(shape))], missions.recognise({}),
+                        model, ProductOptions())
+    first = plan.arrays[0]
+    if edge_reason is not None:
+        first = dataclasses.replace(first, edge_reason=edge_reason)
+    return dataclasses.replace(plan, arrays=(first,),
+                               pedestal_text=pedestal_text or plan.pedestal_text)

@@ -392,14 +392,14 @@ def test_bz2_and_zip_inputs_are_read_as_astropy_reads_them(cli, tmp_path, packin
 
 
 def test_an_asdf_input_with_a_fits_output_is_refused_before_the_work(cli, tmp_path, monkeypatch):
-    from ipc_taichi.products import conventions
+    from ipc_taichi.products import roman
 
     src = _roman_input(tmp_path, "rate")
 
     def work(*args, **kwargs):
         raise AssertionError("the work started")
 
-    monkeypatch.setattr(conventions, "correct_frames", work)
+    monkeypatch.setattr(roman, "correct_frames", work)
     r = cli("decouple", "--law", "donlon2018", src, tmp_path / "out.fits", "--gain", GAIN)
     _refused(r, tmp_path, "out.fits", ".asdf")
 
@@ -428,7 +428,9 @@ def _whole_prefix(card, text, separators):
 
 
 def test_header_values_are_never_cut_inside_a_number():
+    from ipc_taichi.products import RunSettings
     from ipc_taichi.products.provenance import Provenance, card_text
+    from tests.helpers import one_array_plan
 
     reason = ("reference pixels (NIRCam subarray SUB640 at x 1..640, y 1409..2048 of the "
               "detector): zero-signal neighbours")
@@ -437,9 +439,9 @@ def test_header_values_are_never_cut_inside_a_number():
         assert len(cut) <= width and _whole_prefix(cut, reason, " ,;"), (width, cut)
     model = CouplingModel.resolve("donlon2018", "horizontal=0.987654321,vertical=0.876543219,"
                                   "diagonal=0.0123456789,second=0.00234567891")
-    prov = Provenance("decouple", model, reason, 3, "given: 20000.0 e-", 1, "cpu", "f64",
-                      1e-6, 100)  # the record every reader writes (FITS, Roman, the Step)
-    prov.add_hdu(1, "SCI", "in.fits[SCI]", (slice(0, 8), slice(0, 8)), "electrons", None, 1)
+    plan = one_array_plan(model, (8, 8), "in.fits[SCI]", reason, "given: 20000.0 e-")
+    # the record every reader writes (FITS, Roman, the Step)
+    prov = Provenance(plan, RunSettings("decouple", 100, 1e-6))
     header = prov.primary(fits.Header())
     described = model.geometry.describe()
     assert len(described) > 68 and _whole_prefix(header["IPCGEOM"], described, ";"), header

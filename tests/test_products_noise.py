@@ -21,7 +21,7 @@ from ipc_taichi import iteration, noise
 from ipc_taichi.model import CouplingModel
 from ipc_taichi.products import process_product
 from ipc_taichi.products.jwst_step import IPCTaichiStep
-from ipc_taichi.products.plan import noise_of
+from ipc_taichi.products.noise_arrays import noise_of
 from tests.test_noise import SHAPE, _pooled, _scene
 
 MODEL = CouplingModel.resolve("donlon2018", None, "zero")

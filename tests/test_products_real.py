@@ -383,11 +383,12 @@ def test_a_killed_run_claims_nothing():
     """The header written before the work says PENDING (what a run killed by
     SIGKILL leaves in its temporary file); COMPLETE only after the work."""
     from ipc_taichi.model import CouplingModel
+    from ipc_taichi.products import RunSettings
     from ipc_taichi.products.provenance import Provenance
+    from tests.helpers import one_array_plan
 
-    prov = Provenance("decouple", CouplingModel.resolve("donlon2018"), "chosen", 1, "none", 1,
-                      "cpu", "f64", 1e-5, 20)
-    prov.add_hdu(1, "SCI", "x[SCI]", (slice(0, 4), slice(0, 4)), "electrons", 0, 1)
+    plan = one_array_plan(CouplingModel.resolve("donlon2018"))
+    prov = Provenance(plan, RunSettings("decouple", 20, 1e-5))
     assert prov.primary(fits.Header())["S_IPC"] == "PENDING"
 
     class Info:

@@ -2,7 +2,8 @@
 
 These are pure functions of arrays and header values; the readers and writers
 (:mod:`ipc_taichi.products.fits`, :mod:`ipc_taichi.products.roman`, the
-``stpipe`` step) call them, and :func:`correct_frames` applies them to the
+``stpipe`` step) call them, and
+:func:`~ipc_taichi.products.correction.correct_frames` applies them to the
 science array. The conventions (also in ``docs/products.md``):
 
 - **DQ.** A pixel whose data-quality word has any of the chosen bits set
@@ -27,7 +28,8 @@ science array. The conventions (also in ``docs/products.md``):
   per-pixel gain are left out (:func:`unusable_gain`).
 - **Pedestal.** The law is evaluated at the charge on the node, which
   includes what was there before the first read (a zeroth read):
-  :func:`correct_frames` with ``pedestal``.
+  the array plan's ``pedestal``
+  (:class:`~ipc_taichi.products.correction.FramePlan`).
 - **Unphysical values** that nothing flags (an infinite value, or a charge
   outside :data:`PHYSICAL_RANGE`) are masked like flagged pixels (they keep
   their values and neither give nor take charge), counted
@@ -43,17 +45,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .. import iteration, noise
-from ..coupling import couple
-from ..decoupling import decouple
-from ..errors import ConvergenceWarning, DivergenceError, IPCInputError
-from ..interrupts import check_stop
-from ..progress import reporters
-from .checks import FrameLost, LostFrames, dq_word
+from ..errors import IPCInputError
+from .checks import dq_word
 from .missions import DEFAULT_DQ, JWST_DQ_FLAGS, REFERENCE_PIXEL
 
 __all__ = ["ProductWarning", "parse_dq_bits", "untrusted", "unusable_gain", "science_region",
-           "charge_scale", "correct_frames", "Units", "RATE_UNITS", "CHARGE_UNITS", "Unphysical",
+           "charge_scale", "Units", "RATE_UNITS", "CHARGE_UNITS", "Unphysical",
            "REFERENCE_PIXEL", "PHYSICAL_RANGE", "unphysical", "UNPHYSICAL_CHOICES"]
 
 
@@ -370,229 +367,3 @@ def charge_scale(units, gain, exptime, label, time_source="EFFINTTM", coadds=1,
     text = (f"{units.text or 'electrons (no BUNIT)'} -> electrons"
             + (f" ({'; '.join(parts)})" if parts else ""))
     return scale, text
-
-
-class named:
-    """Context manager: a :class:`DivergenceError` raised inside is raised
-    again with ``where`` (the file, HDU and frame) in front of its message."""
-
-    def __init__(self, where):
-        self.where = where
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, exc_type, exc, tb):
-        if exc_type is not None and issubclass(exc_type, DivergenceError):
-            raise DivergenceError(f"{self.where}: {exc}") from None
-        return False
-
-
-def correct_frames(data, operation, model, *, mask=None, region=None, scale=1.0,
-                   out=None, max_iter=iteration.MAX_ITER, tol=iteration.TOL, arch=None,
-                   precision=None, label="data", pedestal=None, unphysical="mask",
-                   progress=None, ramp=False, noise=None):
-    """Couple or decouple every 2-D frame of ``data`` by the product rules.
-
-    The pure correction function under every product reader/writer.
-
-    Parameters
-    ----------
-    data : ndarray, shape (..., ny, nx)
-        The science array in its own units (any real dtype).
-    operation : {"couple", "decouple"}
-    model : CouplingModel
-        The model of the science region (its edge rule decided by
-        :func:`ipc_taichi.products.plan.edge_of`).
-    mask : ndarray of bool, optional
-        Untrusted pixels (True), broadcastable to ``data``: they keep their
-        values and do not couple (see :func:`untrusted`).
-    region : (slice, slice), optional
-        The science region inside the reference pixels (default: the frame).
-    scale : float or ndarray (ny, nx)
-        Electrons per data unit (see :func:`charge_scale`); pixels without a
-        usable per-pixel gain are left out.
-    out : ndarray, optional
-        Where to write (same shape as ``data``; default: a float64 copy).
-        Pixels outside ``region`` and masked pixels are copied from ``data``.
-    max_iter, tol, arch, precision :
-        As for :func:`ipc_taichi.decouple`.
-    label : str
-        The file and HDU, for error messages.
-    pedestal : ndarray (ny, nx), optional
-        Charge on the node before the first read, in electrons, as measured
-        (e.g. a zeroth read). The law sees ``data + pedestal``: decouple gives
-        ``D(M + P) - D(P)``, couple ``C(S + P) - C(P)``, so the frame keeps its
-        meaning (charge since the pedestal) while alpha is evaluated at the
-        charge really on the node.
-    unphysical : {"mask", "keep"} or Unphysical
-        What is done with unflagged pixels no detector can hold (see
-        :class:`Unphysical`; pass one to read the count afterwards). Said in
-        one warning line for the whole array.
-    progress : callable, optional
-        Told of each frame done, or of each iteration of a lone frame (see
-        :func:`ipc_taichi.progress.reporters`).
-    ramp : bool
-        The frames along axis -3 are the groups of a ramp (the charge grows
-        from one to the next): decouple each integration's groups with warm
-        starts (:func:`ipc_taichi.decouple` ``warm_start=True``: each group
-        starts from the previous group's answer plus the new charge; the same
-        stopping rule, so the same tolerance as from scratch).
-    noise : dict, optional
-        The product's noise arrays beside ``data`` (``err``, ``var_poisson``, ``var_rnoise``,
-        ``var_flat``; each of ``data``'s shape, float64, C-contiguous, data units), replaced in
-        place, frame by frame, by their values after the decoupler with this frame's region,
-        model, mask, scale and pedestal (:func:`ipc_taichi.noise.propagate_noise`). Decouple only.
-
-    Returns
-    -------
-    out : ndarray
-    infos : list of DecoupleInfo (decouple) or of None (couple), one per frame.
-    """
-    data = np.asarray(data)
-    shape = data.shape
-    ny, nx = shape[-2:]
-    region = region or (slice(0, ny), slice(0, nx))
-    frames = data.reshape((-1, ny, nx))
-    masks = None if mask is None else np.broadcast_to(mask, shape).reshape((-1, ny, nx))
-    if out is None:
-        out = np.array(data, dtype=np.float64)
-    else:  # the region is written frame by frame below; the rest kept from data
-        _copy_outside(out, data, region)
-    flat_out = out.reshape((-1, ny, nx))
-    s = np.asarray(scale, dtype=np.float64)
-    s_in = s[region] if s.ndim == 2 else s
-    base = None if pedestal is None else np.asarray(pedestal, dtype=np.float64)[region]
-    after_frame, after_iteration = reporters(progress, frames.shape[0], max_iter)
-    settings = dict(operation=operation, model=model, max_iter=max_iter, tol=tol, arch=arch,
-                    precision=precision, callback=after_iteration, spare={})
-    record = unphysical if isinstance(unphysical, Unphysical) else Unphysical(unphysical)
-    offset = (region[0].start or 0, region[1].start or 0)
-    if any(not v.flags.c_contiguous for v in (noise or {}).values()):
-        raise ValueError("correct_frames: noise arrays must be C-contiguous (updated in place)")
-    noisy = {k: v.reshape((-1, ny, nx)) for k, v in (noise or {}).items()
-             if operation == "decouple"}
-    cached = {}
-    infos, lost = [], LostFrames(frames.shape[0])
-    groups = shape[-3] if ramp and operation == "decouple" and len(shape) > 2 else 1
-    for k0 in range(0, frames.shape[0], groups):
-        check_stop()  # a SIGINT/SIGTERM swallowed by a library stops the run here
-        ks = range(k0, k0 + groups)
-        wheres = [f"{label} frame {k}" if frames.shape[0] > 1 else label for k in ks]
-        into = settings["spare"].pop("in", None) if groups == 1 else None  # done with
-        try:
-            measured, ms = zip(*(_frame_in(frames[k][region], s, s_in, base, record, where,
-                                           offset, operation,
-                                           None if masks is None else masks[k][region], into)
-                                 for k, where in zip(ks, wheres)))
-        except FrameLost as exc:  # one frame of a stack: left as it came, said
-            infos.append(lost.keep(exc, operation, groups))
-            flat_out[k0][region] = frames[k0][region]
-            continue
-        results, run_infos = _solve(measured, ms, base, cached, wheres, settings)
-        for k, y, m, result, info in zip(ks, measured, ms, results, run_infos):
-            if not _unit(s_in):
-                with np.errstate(divide="ignore", invalid="ignore"):  # no gain: masked
-                    result = result / s_in
-            target = flat_out[k][region]
-            target[...] = result if m is None else np.where(m, frames[k][region], result)
-            if noisy:
-                _propagate(noisy, k, region, target, y, m, model, s_in, base)
-            infos.append(info)
-            if after_frame is not None:
-                after_frame(k + 1)
-        settings["spare"].update({"in": measured[0]} if groups == 1 else {})
-    record.warn(label)
-    if lost.said():
-        warnings.warn(lost.said(), ProductWarning, stacklevel=2)
-    return out, infos
-
-
-def _frame_in(frame, s, s_in, base, record, where, offset, operation, flagged, into=None):
-    """One frame's measured charge (electrons) and its mask (None when none);
-    written into ``into`` (a float64 array the caller has done with) when it fits."""
-    fits = into is not None and into.shape == frame.shape
-    measured = into if fits else frame.astype(np.float64)
-    if fits:
-        np.copyto(measured, frame, casting="unsafe")
-    if not _unit(s_in):
-        measured *= s_in
-    m = untrusted([], 0, measured.shape, flagged, gain=s_in if s.ndim == 2 else None)
-    bad = record.add(measured if base is None else measured + base, m, where, offset)
-    if bad is not None:
-        m = bad if m is None else (m | bad)
-    good = np.isfinite(measured) if m is None else (np.isfinite(measured) & ~m)
-    if not good.any():
-        raise FrameLost(f"{where}: no finite, unmasked pixel to {operation} "
-                        "(all NaN, flagged or unphysical)")
-    return measured, m
-
-
-def _copy_outside(out, data, region):
-    """``out = data`` outside ``region``, in four slabs (the frame loop writes
-    every pixel inside it: its result, or the input for a masked pixel)."""
-    (y0, y1, _), (x0, x1, _) = (r.indices(n) for r, n in zip(region, data.shape[-2:]))
-    for part in ((slice(0, y0), slice(None)), (slice(y1, None), slice(None)),
-                 (slice(y0, y1), slice(0, x0)), (slice(y0, y1), slice(x1, None))):
-        out[(Ellipsis,) + part] = data[(Ellipsis,) + part]
-
-
-def _unit(scale):
-    """Whether electrons per unit is the number 1: a pass saved, no bit changed."""
-    return scale.ndim == 0 and float(scale) == 1.0
-
-
-def _solve(measured, masks, base, cached, wheres, settings):
-    """The frames (one, or the groups of one integration, warm-started) through
-    the decoupler or the forward model; ``D(M + P) - D(P)`` with a pedestal."""
-    if len(measured) == 1:
-        charge, mask, where = measured[0], masks[0], wheres[0]
-    else:
-        charge, where = np.stack(measured), f"{wheres[0]}-{wheres[-1].rsplit(' ', 1)[-1]}"
-        mask = None if all(m is None for m in masks) else np.stack(
-            [np.zeros(charge.shape[1:], bool) if m is None else m for m in masks])
-    if base is not None:
-        charge = charge + base
-    result, info = _run(charge, mask, where, **settings)
-    results = [result] if len(measured) == 1 else list(result)
-    infos = [info] if len(measured) == 1 else list(info)
-    if base is not None:
-        for i, (m, w) in enumerate(zip(masks, wheres)):
-            key = None if m is None else m.tobytes()
-            if key not in cached:  # the pedestal through the same law, once per mask
-                cached[key] = _run(base, m, w, **{**settings, "spare": None})[0]
-            results[i] = results[i] - cached[key]
-    return results, infos
-
-
-def _propagate(noisy, k, region, solution, measured, mask, model, s_in, base):
-    """Frame ``k`` of the noise arrays through the linearised decoupler, in place."""
-    given = {name: array[k][region] for name, array in noisy.items()}
-    with np.errstate(divide="ignore", invalid="ignore"):
-        y = measured / s_in
-    new = noise.propagate_noise(np.asarray(solution, dtype=np.float64), model, measured=y,
-                                mask=mask, scale=s_in, pedestal=base, **given)
-    for name, value in new.items():
-        given[name][...] = value
-
-
-def _run(charge, mask, where, operation, model, max_iter, tol, arch, precision, callback,
-         spare=None):
-    """One frame in electrons (or a ramp's groups: warm-started) through the decoupler or
-    the forward model; ``spare`` (dict or None): the previous frame's decoupled array,
-    done with, is written again (a new one pays a page fault per page), this one kept."""
-    out = None if spare is None else spare.pop("frame", None)
-    out = out if out is not None and out.shape == np.shape(charge) else None
-    with warnings.catch_warnings(), named(where):
-        warnings.simplefilter("ignore", ConvergenceWarning)  # reported per frame by callers
-        if operation == "decouple":
-            result, info = decouple(charge, model=model, mask=mask, max_iter=max_iter,
-                                    tol=tol, arch=arch, precision=precision, full_output=True,
-                                    callback=callback, warm_start=np.ndim(charge) == 3,
-                                    out=out)
-            if spare is not None and type(result) is np.ndarray and result.ndim == 2:
-                spare["frame"] = result
-        else:
-            result, info = couple(charge, model=model, mask=mask, arch=arch,
-                                  precision=precision), None
-    return np.asarray(np.ma.getdata(result), dtype=np.float64), info

@@ -32,7 +32,7 @@ decoupling, replaced by their values after the decoupler
 model, mask, scale and pedestal of the correction), in their own dtype and
 HDU; ``IPCNOISE`` and a HISTORY line say so. ``couple``, ``--keep-noise`` and
 ``--tile`` leave them as they came and say that instead
-(:func:`ipc_taichi.products.plan.noise_of`).
+(:func:`ipc_taichi.products.noise_arrays.noise_of`).
 """
 
 import os
@@ -40,11 +40,12 @@ import warnings
 
 import numpy as np
 
-from .. import iteration, runtime
+from .. import runtime
 from ..errors import IPCInputError
 from ..fitsio import atomic_output, check_output_path, parse_hdu
 from . import conventions as cv
 from . import missions, streams
+from .correction import RunSettings
 from .fitsfile import (
     flag_hdus,
     hdu_label,
@@ -58,16 +59,16 @@ from .fitsfile import (
     shape_of,
     write_skeleton,
 )
+from .noise_arrays import NOISE_ARRAYS, noise_of
 from .options import ProductOptions, resolve_model
-from .plan import NOISE_ARRAYS, ArrayFacts, Zeroth, noise_of, plan_product
+from .plan import ArrayFacts, Zeroth, plan_product
+from .provenance import Provenance
 
 __all__ = ["process_fits", "array_facts"]
 
 
-def _check_paths(input_path, output_path, operation, options):
-    if operation not in ("couple", "decouple"):
-        raise IPCInputError(f"operation must be couple or decouple, got {operation!r}")
-    if options.tile and operation != "decouple":
+def _check_paths(input_path, output_path, settings, options):
+    if settings.tile and settings.operation != "decouple":
         raise IPCInputError("--tile is for decouple")
     check_output_path(output_path, options.overwrite)  # fail before computing
     if os.path.exists(output_path) and os.path.exists(input_path) and \
@@ -217,14 +218,13 @@ def process_fits(input_path, output_path, operation="decouple", *, model=None, o
     """
     options = ProductOptions.from_kwargs(options, **kwargs)
     model, options = resolve_model(model, options)
-    max_iter, tol = iteration.check_arguments(options.max_iter, options.tol)
-    options = options.replace(max_iter=max_iter, tol=tol)
-    _check_paths(input_path, output_path, operation, options)
+    settings = RunSettings.of(options, operation)
+    _check_paths(input_path, output_path, settings, options)
     hdul = open_fits(input_path, memmap=True)
     with hdul:
         plan, flags, dtypes, noise, noise_text = _plan(input_path, hdul, model, options,
                                                        operation)
-        if options.tile:
+        if settings.tile:
             for k in [p.index for p in plan.arrays] + [f for p in plan.arrays
                                                         for f in flags[p.index]]:
                 if is_compressed(hdul[k]):
@@ -232,9 +232,8 @@ def process_fits(input_path, output_path, operation="decouple", *, model=None, o
                         f"{input_path}[{hdu_label(hdul, k)}]: tile-compressed; --tile reads "
                         "pixels through memory maps: run without --tile, or decompress the "
                         "file first (funpack)")
-        rt = runtime.init(options.arch, options.precision)
-        prov = plan.provenance(operation, rt.arch, rt.precision, tol, max_iter, options.tile,
-                               noise_text)
+        prov = Provenance(plan, settings, runtime.init(options.arch, options.precision),
+                          noise_text)
 
         def headers():
             out = {}
@@ -253,41 +252,29 @@ def process_fits(input_path, output_path, operation="decouple", *, model=None, o
                 _, _, offset = places[p.index]
                 out = np.memmap(tmp, dtype=dtypes[p.index].newbyteorder(">"), mode="r+",
                                 offset=offset, shape=p.shape)
-                record = cv.Unphysical(options.unphysical)
+                record = cv.Unphysical(settings.unphysical)
                 try:
-                    prov.infos[p.index] = _correct(input_path, hdul, p, flags[p.index], out,
-                                                   plan.bits, options, operation, record,
-                                                   _Noise(input_path, hdul, tmp, places, dtypes,
-                                                          noise[p.index], p))
+                    prov.infos[p.index] = _correct(
+                        input_path, hdul, p, streams.Flags(
+                            input_path, hdul, flags[p.index], plan.bits, p, options.saturation,
+                            settings.tile), out, settings, record,
+                        _Noise(input_path, hdul, tmp, places, dtypes, noise[p.index], p))
                     prov.unphysical[p.index] = record.masked
                     out.flush()
                 finally:
                     del out
             _write(output_path, lambda: _rewrite_headers(tmp, places, headers(), output_path))
-    infos = [i for p in plan.arrays for i in prov.infos[p.index]]
-    converged = None if operation == "couple" or tol == 0 else all(i.converged for i in infos)
-    first = plan.arrays[0]
-    return {"output": output_path, "label": first.label, "frames": len(infos),
-            "infos": infos, "hdus": [p.label for p in plan.arrays],
-            "iterations": max(i.iterations for i in infos) if operation == "decouple" else 0,
-            "converged": converged, "law": first.model.law.name,
-            "edge": first.model.edge, "masked_unphysical": sum(prov.unphysical.values())}
+    return prov.summary(output_path)
 
 
-def _correct(input_path, hdul, plan, flag_indices, out, bits, options, operation, record,
-             noise):
-    """Correct one science HDU of the plan (:class:`~ipc_taichi.products.plan.ArrayPlan`)
-    and its noise HDUs (a :class:`_Noise`)."""
-    flags = streams.Flags(input_path, hdul, flag_indices, bits, plan.science_shape,
-                          plan.inside, options.saturation, options.tile, plan.arrangement)
-    if options.tile:
-        return streams.tiled(input_path, hdul, plan.index, out, flags, plan.region,
-                             plan.scale, plan.model, options, plan.label, record)
+def _correct(input_path, hdul, plan, flags, out, settings, record, noise):
+    """Correct one science HDU of the plan (its :class:`~ipc_taichi.products.plan.ArrayPlan`;
+    ``flags``: its :class:`~ipc_taichi.products.streams.Flags`) and its noise HDUs
+    (a :class:`_Noise`), whole or tile by tile."""
+    if settings.tile:
+        return streams.tiled(input_path, hdul, plan, out, flags, settings, record)
     arrays = noise.read()
-    infos = streams.whole(input_path, hdul, plan.index, out, flags, plan.region,
-                          plan.scale, plan.model, options, plan.label,
-                          pedestal=plan.pedestal, operation=operation, record=record,
-                          arrangement=plan.arrangement, ramp=plan.ramp, noise=arrays)
+    infos = streams.whole(input_path, hdul, plan, out, flags, settings, record, arrays)
     noise.write(arrays)
     return infos
 

@@ -58,8 +58,11 @@ from .. import __version__, iteration, runtime
 from ..errors import IPCInputError
 from . import conventions as cv
 from . import missions
+from .correction import RunSettings, correct_frames
+from .noise_arrays import held, noise_of
 from .options import ProductOptions
-from .plan import NOISE_ARRAYS, ArrayFacts, noise_of, plan_product
+from .plan import ArrayFacts, plan_product
+from .provenance import Provenance
 from .stepspec import SPEC, coupling_of
 
 __all__ = ["IPCTaichiStep", "Detector1TaichiPipeline", "correct_ramp", "correct_model",
@@ -102,18 +105,6 @@ def _flags(datamodel, shape, label):
             raise IPCInputError(f"{label}[{name.upper()}]: shape {f.shape} does not match the "
                                 f"science data's {shape}; refused")
         found.append(f)
-    return found
-
-
-def _noise(datamodel, shape):
-    """The model's noise arrays present (``err``, ``var_*``) of the data's
-    shape, floating point: ``name -> ndarray``."""
-    found = {}
-    for name in NOISE_ARRAYS:
-        value = datamodel.instance.get(name)
-        if value is not None and np.shape(value) == tuple(shape) and \
-                np.asarray(value).dtype.kind == "f":
-            found[name] = np.asarray(value)
     return found
 
 
@@ -168,19 +159,16 @@ def correct_model(datamodel, coupling, options, superbias=None):
     work = data if superbias is None else data - superbias
     mask = cv.untrusted(flags, plan.bits, data.shape, p.layout.inside_mask(), values=work,
                         saturation=options.saturation)
-    came = _noise(datamodel, stored.shape)
+    came = held(datamodel.instance.get, stored.shape)
     propagate, noise_text = noise_of("decouple", options, list(came),
                                      f"{p.label.rsplit('[', 1)[0]}[{next(iter(came), '')}]")
     noise = {k: np.array(science(v), dtype=np.float64) for k, v in came.items()} \
         if propagate else {}
     out = np.empty(data.shape, dtype=data.dtype)
-    record = cv.Unphysical(options.unphysical)
-    _, infos = cv.correct_frames(work, "decouple", p.model, mask=mask, region=p.region,
-                                 scale=p.scale, out=out, max_iter=options.max_iter,
-                                 tol=options.tol, arch=options.arch,
-                                 precision=options.precision, label=p.label, unphysical=record,
-                                 ramp=p.ramp, noise=noise, pedestal=p.pedestal,
-                                 progress=options.progress)
+    settings = RunSettings.of(options, "decouple")
+    record = cv.Unphysical(settings.unphysical)
+    _, infos = correct_frames(work, p, settings, mask=mask, out=out, noise=noise,
+                              record=record)
     if superbias is not None:
         out += superbias.astype(out.dtype)
         # pixels left alone (reference border, masked): exactly as they came
@@ -193,9 +181,7 @@ def correct_model(datamodel, coupling, options, superbias=None):
     for name, value in noise.items():  # in their own dtype, every other sample as it came
         datamodel[name] = p.arrangement.from_science(value.astype(came[name].dtype),
                                                      came[name])
-    rt = runtime.current()
-    prov = plan.provenance("decouple", rt.arch if rt else "", rt.precision if rt else "",
-                           options.tol, options.max_iter, noise=noise_text)
+    prov = Provenance(plan, settings, runtime.current(), noise_text)
     prov.infos[p.index] = infos
     prov.unphysical[p.index] = record.masked
     _record(datamodel, prov, p.index)

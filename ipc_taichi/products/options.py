@@ -83,7 +83,7 @@ class ProductOptions:
         The noise arrays beside the science one (``ERR``, ``VAR_POISSON``,
         ``VAR_RNOISE``, ``VAR_FLAT``; Roman's and the Step's ``err`` and
         ``var_*``): propagated through the linearised decoupler (the default,
-        decouple only; :func:`ipc_taichi.products.plan.noise_of`) or left as
+        decouple only; :func:`ipc_taichi.products.noise_arrays.noise_of`) or left as
         they came (``--keep-noise``).
     warm_start : bool
         Decouple the groups of a ramp with warm starts (each from the

@@ -28,14 +28,15 @@ decisions, in this order, are made here:
 4. **Edge** (:func:`edge_of`): the model says which edge rule it asks for;
    the product's frame decides what it gets.
 5. **Pedestal**: the charge on the node before the first read.
-6. **Noise** (:func:`noise_of`): whether the arrays beside the science one
-   (``ERR``, ``VAR_*``) are propagated through the linearised decoupler, and
-   what the record says of them.
 
-The per-array work (:func:`~ipc_taichi.products.conventions.correct_frames`,
-and what a reader does with the arrays beside the science one) happens after,
-in the readers, one :class:`ArrayPlan` at a time; the record of the run is
-:meth:`ProductPlan.provenance`.
+Whether the noise arrays beside the science one (``ERR``, ``VAR_*``) are
+propagated is asked of :func:`ipc_taichi.products.noise_arrays.noise_of`.
+The per-array work happens after, in the readers, one :class:`ArrayPlan` at a
+time: :func:`~ipc_taichi.products.correction.correct_frames` takes the array's
+plan as it is, with the run's
+:class:`~ipc_taichi.products.correction.RunSettings`; the record of the run
+is built from the same two
+(:class:`~ipc_taichi.products.provenance.Provenance`).
 """
 
 import warnings
@@ -46,15 +47,13 @@ import numpy as np
 
 from ..errors import IPCInputError
 from ..model import CouplingModel
-from ..noise import METHOD
 from . import conventions as cv
 from . import layouts, missions
 from .checks import check_gain_image, check_pedestal, header_gain
 from .gain import read_frame, read_gain
-from .provenance import Provenance
 
 __all__ = ["ArrayFacts", "ArrayPlan", "Layout", "ProductPlan", "Zeroth", "plan_product",
-           "plan_array", "noise_of", "NOISE_ARRAYS", "dq_bits_of", "say_lacking",
+           "plan_array", "dq_bits_of", "say_lacking",
            "arrangement_of", "layout_of", "edge_of", "BEYOND"]
 
 BEYOND = ("reference", "pixels", "unknown")
@@ -173,7 +172,9 @@ class Layout:
 
 @dataclass(frozen=True)
 class ArrayPlan:
-    """Everything decided for one science array.
+    """Everything decided for one science array; what
+    :func:`~ipc_taichi.products.correction.correct_frames` takes as it is (it
+    reads the fields a :class:`~ipc_taichi.products.correction.FramePlan` has).
 
     Attributes
     ----------
@@ -247,21 +248,6 @@ class ProductPlan:
     arrays: tuple
     pedestal_text: str = "none"
     complete: bool = True
-
-    def provenance(self, operation, arch, precision, tol, max_iter, tile=None,
-                   noise="none"):
-        """The :class:`~ipc_taichi.products.provenance.Provenance` of a run of
-        this plan (every path records the same keywords and HISTORY);
-        ``noise``: what was done with the noise arrays (:func:`noise_of`)."""
-        first = self.arrays[0]
-        prov = Provenance(operation, first.model, first.edge_reason, self.bits,
-                          self.pedestal_text, first.coadds, arch, precision, tol, max_iter,
-                          tile, self.complete, noise)
-        for a in self.arrays:
-            prov.add_hdu(a.index, a.name, a.label, a.region, a.units_text, a.exptime, a.frames,
-                         a.layout.widths,
-                         "" if a.arrangement.identity else a.arrangement.note)
-        return prov
 
 
 def _items(text):
@@ -480,50 +466,6 @@ def _pedestal(facts, options, gain, zeroth, layout):
             raise IPCInputError(f"{facts.label}: the zeroth read has another shape")
         return zeroth.charge(gain)
     return None
-
-
-NOISE_ARRAYS = ("err", "var_poisson", "var_rnoise", "var_flat")
-"""The noise arrays a product may hold beside its science array (FITS
-``EXTNAME`` in upper case), as :func:`ipc_taichi.noise.propagate_noise` names them."""
-
-
-def noise_of(operation, options, found, where):
-    """Whether a product's noise arrays are propagated, and the record's text.
-
-    Propagated (:data:`ipc_taichi.noise.METHOD`) when decoupling, unless
-    ``options.noise`` is ``"keep"``; ``couple`` leaves them as they came
-    (the forward model adds the coupling to a signal whose noise the caller
-    knows; what the arrays describe is not changed by it); a tiled run leaves
-    them as they came and says so in one line (the linearisation is made on
-    whole frames).
-
-    Parameters
-    ----------
-    found : list of str
-        The names (:data:`NOISE_ARRAYS`) of the arrays of the science
-        array's shape that the product holds.
-    where : str
-        The file and its first noise array, for the one line of a tiled run.
-
-    Returns
-    -------
-    propagate : bool
-    text : str
-        The ``IPCNOISE`` keyword's value (at most 68 characters).
-    """
-    names = ", ".join(n.upper() for n in found)
-    if not found:
-        return False, "none: no ERR or VAR_* array"
-    if options.noise == "keep":
-        return False, f"unchanged (--keep-noise): {names}"
-    if operation != "decouple":
-        return False, f"unchanged (couple): {names}"
-    if options.tile:
-        warnings.warn(f"{where}: {names} left unchanged with --tile (the noise is propagated "
-                      "on whole frames); run without --tile to propagate it",
-                      cv.ProductWarning, stacklevel=3)
-        return False, f"unchanged (--tile): {names}"
-    return True, METHOD
 
 
 def plan_array(facts, mission, model, options, zeroth=None):

@@ -82,33 +82,43 @@ class Provenance:
     the file keeps its size when it is rewritten at the end.
     """
 
-    def __init__(self, operation, model, edge_reason, bits, pedestal_text, coadds, arch,
-                 precision, tol, max_iter, tile=None, all_science=True, noise="none"):
-        self.operation = operation
-        self.model = model
-        self.edge_reason = edge_reason
-        self.bits = int(bits)
-        self.pedestal_text = pedestal_text
-        self.coadds = int(coadds)
-        self.arch, self.precision = arch, precision
-        self.tol, self.max_iter, self.tile = tol, max_iter, tile
-        self.all_science = all_science
-        self.noise = noise  # what was done with ERR/VAR_* (plan.noise_of)
+    def __init__(self, plan, settings, ran=None, noise="none"):
+        """The record of a run of ``settings`` (its
+        :class:`~ipc_taichi.products.correction.RunSettings`) on ``plan`` (its
+        :class:`~ipc_taichi.products.plan.ProductPlan`: the model, edge and
+        coadds of its first array, one science HDU per array); ``ran``: the
+        runtime it ran on (its ``arch`` and ``precision``; None: not known);
+        ``noise``: what was done with the noise arrays
+        (:func:`ipc_taichi.products.noise_arrays.noise_of`)."""
+        first = plan.arrays[0]
+        self.operation = settings.operation
+        self.model = first.model
+        self.edge_reason = first.edge_reason
+        self.bits = int(plan.bits)
+        self.pedestal_text = plan.pedestal_text
+        self.coadds = int(first.coadds)
+        self.arch, self.precision = (ran.arch, ran.precision) if ran is not None else ("", "")
+        self.tol, self.max_iter, self.tile = settings.tol, settings.max_iter, settings.tile
+        self.all_science = plan.complete
+        self.noise = noise
         self.hdus = {}  # index -> dict(name, region, units, exptime, frames)
         self.infos = {}  # index -> list of DecoupleInfo (None before the work)
         self.unphysical = {}  # index -> unflagged pixels masked as unphysical
         self.started = _now()
+        for array in plan.arrays:
+            self._add(array)
 
-    def add_hdu(self, index, name, label, region, units_text, exptime, frames,
-                nref=(0, 0, 0, 0), arrangement=""):
-        """A science array of the run; ``nref``: its reference-pixel widths
-        (bottom, top, left, right: ``IPCNREF``); ``arrangement``: how its frames
-        are read out, when not contiguous (said in HISTORY)."""
-        nref = " ".join(str(n) for n in nref)
-        self.hdus[index] = dict(name=name, label=label, region=region, units=units_text,
-                                exptime=float(exptime or 0.0), frames=frames, nref=nref,
-                                arrangement=arrangement)
-        self.infos[index] = [None] * frames
+    def _add(self, array):
+        """A science array of the run (an :class:`~ipc_taichi.products.plan.ArrayPlan`):
+        its reference-pixel widths (bottom, top, left, right: ``IPCNREF``), and
+        how its frames are read out when not contiguous (said in HISTORY)."""
+        arrangement = array.arrangement
+        self.hdus[array.index] = dict(
+            name=array.name, label=array.label, region=array.region, units=array.units_text,
+            exptime=float(array.exptime or 0.0), frames=array.frames,
+            nref=" ".join(str(n) for n in array.layout.widths),
+            arrangement="" if arrangement.identity else arrangement.note)
+        self.infos[array.index] = [None] * array.frames
 
     @property
     def done(self):
@@ -209,6 +219,23 @@ class Provenance:
                                  f"{'converged    ' if conv else 'NOT converged'}, "
                                  f"last max|dS| {last:10.3e}")
         return lines
+
+    def summary(self, output):
+        """What a product run returns (:func:`~ipc_taichi.products.process_fits`,
+        :func:`~ipc_taichi.products.process_asdf`): ``output``, ``label`` (the
+        first array's), ``frames``, ``infos``, ``hdus`` (the arrays' labels),
+        ``iterations`` (max over frames), ``converged`` (all frames; None for
+        couple or ``tol = 0``), ``law``, ``edge`` and ``masked_unphysical``
+        (``IPCNBAD``, all arrays)."""
+        infos = [i for v in self.infos.values() for i in v]
+        decoupled = self.operation == "decouple"
+        converged = all(i.converged for i in infos) if decoupled and self.tol != 0 else None
+        return {"output": output, "label": next(iter(self.hdus.values()))["label"],
+                "frames": len(infos), "infos": infos,
+                "hdus": [h["label"] for h in self.hdus.values()],
+                "iterations": max(i.iterations for i in infos) if decoupled else 0,
+                "converged": converged, "law": self.model.law.name, "edge": self.model.edge,
+                "masked_unphysical": sum(self.unphysical.values())}
 
     def record(self):
         """The same record as a dict (Roman ``meta.ipc_taichi``)."""

@@ -4,7 +4,7 @@ Read and written through ``roman_datamodels``, so the whole tree (metadata,
 border reference pixels, ``amp33``, WCS) is carried through; only the science
 array changes, in its own dtype, and, when decoupling, ``err``,
 ``var_poisson``, ``var_rnoise`` and ``var_flat`` (propagated through the
-linearised decoupler, :func:`ipc_taichi.products.plan.noise_of`; the record's
+linearised decoupler, :func:`ipc_taichi.products.noise_arrays.noise_of`; the record's
 ``noise`` says how). The rules are
 those of :mod:`ipc_taichi.products.conventions`:
 
@@ -31,15 +31,18 @@ import warnings
 
 import numpy as np
 
-from .. import iteration, runtime
+from .. import runtime
 from ..errors import IPCInputError
 from ..fitsio import cannot_write, check_output_path, say_stale
 from ..interrupts import check_stop
 from . import conventions as cv
 from . import missions
 from .checks import check_input_file
+from .correction import RunSettings, correct_frames
+from .noise_arrays import held, noise_of
 from .options import ProductOptions, resolve_model
-from .plan import NOISE_ARRAYS, ArrayFacts, noise_of, plan_product
+from .plan import ArrayFacts, plan_product
+from .provenance import Provenance
 
 __all__ = ["process_asdf"]
 
@@ -62,7 +65,7 @@ def process_asdf(input_path, output_path, operation="decouple", *, model=None, o
     if options.hdu is not None:
         raise IPCInputError(f"{input_path}: --hdu is for FITS products")
     model, options = resolve_model(model, options)
-    max_iter, tol = iteration.check_arguments(options.max_iter, options.tol)
+    settings = RunSettings.of(options, operation)
     check_output_path(output_path, options.overwrite)
     check_input_file(input_path)
     if not str(output_path).lower().endswith(".asdf"):  # found before the work, not after
@@ -94,37 +97,26 @@ def process_asdf(input_path, output_path, operation="decouple", *, model=None, o
         p, = plan.arrays
         mask = cv.untrusted(flags, plan.bits, data.shape, p.layout.inside_mask(), values=data,
                             saturation=options.saturation)
-        came = _noise(dm, data.shape)
+        came = held(lambda name: dm[name] if name in dm else None, data.shape)
         propagate, noise_text = noise_of(operation, options, list(came),
                                          f"{input_path}[{next(iter(came), '')}]")
         noise = {k: np.array(v, dtype=np.float64) for k, v in came.items()} \
             if propagate else {}
         out = np.empty(data.shape, dtype=data.dtype)
-        record = cv.Unphysical(options.unphysical)
-        _, infos = cv.correct_frames(data, operation, p.model, mask=mask, region=p.region,
-                                     scale=p.scale, out=out, max_iter=max_iter, tol=tol,
-                                     arch=options.arch, precision=options.precision,
-                                     label=label, unphysical=record,
-                                     progress=options.progress, ramp=p.ramp, noise=noise,
-                                     pedestal=p.pedestal)
+        record = cv.Unphysical(settings.unphysical)
+        _, infos = correct_frames(data, p, settings, mask=mask, out=out, noise=noise,
+                                  record=record)
         dm.data = out
         for name, value in noise.items():  # propagated, each in its own dtype
             dm[name] = value.astype(came[name].dtype)
-        rt = runtime.current()
-        prov = plan.provenance(operation, rt.arch if rt else "", rt.precision if rt else "",
-                               tol, max_iter, noise=noise_text)
-        prov.infos[0] = infos
-        prov.unphysical[0] = record.masked
+        prov = Provenance(plan, settings, runtime.current(), noise_text)
+        prov.infos[p.index] = infos
+        prov.unphysical[p.index] = record.masked
         dm.meta["ipc_taichi"] = prov.record()
         if ramp and operation == "decouple" and "cal_step" in dm.meta:
             dm.meta.cal_step["ipc"] = "COMPLETE" if prov.status() == "COMPLETE" else "FAILED"
         _save(dm, output_path, options.overwrite)
-    converged = None if operation == "couple" or tol == 0 else all(i.converged for i in infos)
-    return {"output": output_path, "label": label, "frames": len(infos), "infos": infos,
-            "hdus": [label],
-            "iterations": max(i.iterations for i in infos) if operation == "decouple" else 0,
-            "converged": converged, "law": p.model.law.name, "edge": p.model.edge,
-            "masked_unphysical": record.masked}
+    return prov.summary(output_path)
 
 
 def _arrays(dm, input_path, label):
@@ -152,18 +144,6 @@ def _arrays(dm, input_path, label):
             raise IPCInputError(f"{input_path}[{name}]: shape {f.shape} does not match "
                                 f"the data {data.shape}")
     return kind, ramp, data, flags
-
-
-def _noise(dm, shape):
-    """The product's noise arrays (``err``, ``var_*``) of the data's shape,
-    floating point: ``name -> ndarray``."""
-    found = {}
-    for name in NOISE_ARRAYS:
-        if name in dm and dm[name] is not None:
-            value = np.asarray(dm[name])
-            if value.shape == tuple(shape) and value.dtype.kind == "f":
-                found[name] = value
-    return found
 
 
 def _facts(dm, kind, label, shape, flags):

@@ -11,6 +11,7 @@ from ..errors import IPCInputError
 from ..interrupts import check_stop
 from ..tiling import decouple_blocks, tiles
 from . import conventions as cv
+from .correction import correct_frames, named
 from .fitsfile import RawImage, read_array
 
 __all__ = ["Flags", "whole", "tiled"]
@@ -20,19 +21,20 @@ class Flags:
     """The bit-flag arrays of one science HDU, whole or as windows, and the
     pixels they (and the other rules) leave out."""
 
-    def __init__(self, path, hdul, indices, bits, shape, inside, saturation, tile,
-                 arrangement=None):
-        self.shape = shape
+    def __init__(self, path, hdul, indices, bits, plan, saturation, tile):
+        """``plan``: the array's :class:`~ipc_taichi.products.plan.ArrayPlan`
+        (its frames' shape, reference pixels inside the region, arrangement)."""
+        self.shape = plan.science_shape
         self.bits = bits
-        self.inside = inside
+        self.inside = plan.inside
         self.saturation = saturation
         indices = indices if bits else []
-        ndim = len(shape)
+        ndim = len(self.shape)
         if tile:
             self.sources = [(RawImage(path, hdul, k), ndim - hdul[k].header["NAXIS"])
                             for k in indices]
         else:
-            science = arrangement.to_science if arrangement is not None else np.asarray
+            science = plan.arrangement.to_science
             self.sources = [(science(read_array(path, hdul, k)), ndim - hdul[k].header["NAXIS"])
                             for k in indices]
 
@@ -56,38 +58,36 @@ class Flags:
                             saturation=self.saturation)
 
 
-def whole(path, hdul, index, out, flags, region, scale, model, options, label, pedestal=None,
-          operation="decouple", record=None, arrangement=None, ramp=False, noise=None):
-    """Correct HDU ``index`` in memory into ``out`` (a memory map of the output);
-    ``record``: the :class:`~ipc_taichi.products.conventions.Unphysical` of
-    this HDU (default: ``options.unphysical``); ``arrangement``: how its frames
-    are read out (corrected in their contiguous image, every other sample
-    copied); ``ramp`` and ``noise`` as for
-    :func:`~ipc_taichi.products.conventions.correct_frames` (``noise`` in the
-    contiguous image)."""
-    original = read_array(path, hdul, index)
-    science = arrangement is not None and not arrangement.identity
-    data = arrangement.to_science(original) if science else original
-    target = np.empty(data.shape, out.dtype) if science else out
-    _, infos = cv.correct_frames(
-        data, operation, model, mask=flags.whole(region, data), region=region, scale=scale,
-        out=target, max_iter=options.max_iter, tol=options.tol, arch=options.arch,
-        precision=options.precision, label=label, pedestal=pedestal,
-        unphysical=record if record is not None else options.unphysical,
-        progress=options.progress, ramp=ramp, noise=noise)
-    if science:
+def whole(path, hdul, plan, out, flags, settings, record=None, noise=None):
+    """Correct the science HDU of ``plan`` (its
+    :class:`~ipc_taichi.products.plan.ArrayPlan`) in memory into ``out`` (a
+    memory map of the output), by
+    :func:`~ipc_taichi.products.correction.correct_frames` with the run's
+    ``settings``; ``record``: the
+    :class:`~ipc_taichi.products.conventions.Unphysical` of this HDU; an
+    interleaved frame is corrected in its contiguous image, every other sample
+    copied (``noise``: in the contiguous image)."""
+    original = read_array(path, hdul, plan.index)
+    arrangement = plan.arrangement
+    data = arrangement.to_science(original)
+    target = out if arrangement.identity else np.empty(data.shape, out.dtype)
+    _, infos = correct_frames(data, plan, settings, mask=flags.whole(plan.region, data),
+                              out=target, noise=noise, record=record)
+    if not arrangement.identity:
         out[...] = arrangement.from_science(target, np.asarray(original))
     return infos
 
 
-def tiled(path, hdul, index, out, flags, region, scale, model, options, label, record=None):
-    """Decouple every frame of HDU ``index`` tile by tile (read and write
-    through memory maps); ``record`` as for :func:`whole`."""
-    record = record if record is not None else cv.Unphysical(options.unphysical)
-    source = RawImage(path, hdul, index)
+def tiled(path, hdul, plan, out, flags, settings, record=None):
+    """Decouple every frame of the science HDU of ``plan`` tile by tile (read
+    and write through memory maps; ``settings.tile``); ``record`` as for
+    :func:`whole`."""
+    record = record if record is not None else cv.Unphysical(settings.unphysical)
+    region, label, tile = plan.region, plan.label, settings.tile
+    source = RawImage(path, hdul, plan.index)
     shape = source.shape
     ny, nx = region[0].stop - region[0].start, region[1].stop - region[1].start
-    s = np.asarray(scale, dtype=np.float64)
+    s = np.asarray(plan.scale, dtype=np.float64)
     infos = []
     leads = list(np.ndindex(*shape[:-2])) if len(shape) > 2 else [()]
     # pixels outside the region (reference pixels) are copied unchanged
@@ -135,13 +135,13 @@ def tiled(path, hdul, index, out, flags, region, scale, model, options, label, r
             out[lead + full(core)] = np.where(read_mask(core), source[lead + full(core)],
                                               result)
 
-        _scan(flagged, factor, (ny, nx), options.tile, where, record,
+        _scan(flagged, factor, (ny, nx), tile, where, record,
               (region[0].start, region[1].start))  # one read pass
-        with cv.named(where):
-            info = decouple_blocks(read, write, (ny, nx), options.tile, model,
-                                   max_iter=options.max_iter, tol=options.tol,
-                                   arch=options.arch, precision=options.precision,
-                                   progress=options.progress, read_mask=read_mask)
+        with named(where):
+            info = decouple_blocks(read, write, (ny, nx), tile, plan.model,
+                                   max_iter=settings.max_iter, tol=settings.tol,
+                                   arch=settings.arch, precision=settings.precision,
+                                   progress=settings.progress, read_mask=read_mask)
         infos.append(info)
     record.warn(label)
     return infos

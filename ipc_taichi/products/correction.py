@@ -1,0 +1,367 @@
+"""The correction of a science array, frame by frame, by the product rules.
+
+:func:`correct_frames` is the one correction every reader calls (FITS whole,
+:func:`ipc_taichi.products.streams.whole`; Roman,
+:func:`ipc_taichi.products.roman.process_asdf`; the JWST Step,
+:func:`ipc_taichi.products.jwst_step.correct_model`), with two records:
+
+- the array's plan (:class:`~ipc_taichi.products.plan.ArrayPlan`, or a
+  :class:`FramePlan` for bare arrays): its model, science region, electrons
+  per data unit, pedestal, whether its frames are a ramp's groups, its label;
+- the run's settings (:class:`RunSettings`, built once from the
+  :class:`~ipc_taichi.products.options.ProductOptions`): the operation, the
+  stopping rule, the runtime asked for, what is done with unphysical pixels,
+  the progress reporter, the tile size of a tiled run.
+
+The rules it applies (units, masked pixels, unphysical values, the pedestal)
+are those of :mod:`ipc_taichi.products.conventions`.
+"""
+
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+
+from .. import iteration, noise
+from ..coupling import couple
+from ..decoupling import decouple
+from ..errors import ConvergenceWarning, DivergenceError, IPCInputError
+from ..interrupts import check_stop
+from ..progress import reporters
+from .checks import FrameLost, LostFrames
+from .conventions import ProductWarning, Unphysical, untrusted
+
+__all__ = ["RunSettings", "FramePlan", "FrameBuffers", "correct_frames", "named", "OPERATIONS"]
+
+OPERATIONS = ("couple", "decouple")
+
+
+@dataclass(frozen=True)
+class RunSettings:
+    """How a run corrects every array of a product: one record, built once
+    (:meth:`of`) from the run's options.
+
+    Attributes
+    ----------
+    operation : {"couple", "decouple"}
+    max_iter, tol, arch, precision :
+        As for :func:`ipc_taichi.decouple` (``arch``, ``precision``: as asked;
+        None: the runtime's).
+    unphysical : {"mask", "keep"}
+        What is done with unflagged pixels no detector can hold
+        (:class:`~ipc_taichi.products.conventions.Unphysical`).
+    progress : bool or callable
+        Told of each frame done, or of each iteration of a lone frame
+        (:func:`ipc_taichi.progress.reporters`); True: only the bar of tiles.
+    tile : int, optional
+        The tile size of a tiled run (FITS, decouple only).
+    """
+
+    operation: str = "decouple"
+    max_iter: int = iteration.MAX_ITER
+    tol: float = iteration.TOL
+    arch: str = None
+    precision: str = None
+    unphysical: str = "mask"
+    progress: object = None
+    tile: int = None
+
+    def __post_init__(self):
+        if self.operation not in OPERATIONS:
+            raise IPCInputError(f"operation must be couple or decouple, got {self.operation!r}")
+        max_iter, tol = iteration.check_arguments(self.max_iter, self.tol)
+        object.__setattr__(self, "max_iter", max_iter)
+        object.__setattr__(self, "tol", tol)
+
+    @classmethod
+    def of(cls, options, operation="decouple"):
+        """The settings of a run of ``operation`` with ``options`` (a
+        :class:`~ipc_taichi.products.options.ProductOptions`)."""
+        return cls(operation, options.max_iter, options.tol, options.arch, options.precision,
+                   options.unphysical, options.progress, options.tile)
+
+
+@dataclass(frozen=True)
+class FramePlan:
+    """What :func:`correct_frames` reads of an array's plan, for bare arrays
+    (an :class:`~ipc_taichi.products.plan.ArrayPlan` is one already).
+
+    Attributes
+    ----------
+    model : CouplingModel
+        The model of the science region (its edge rule decided by
+        :func:`ipc_taichi.products.plan.edge_of`).
+    region : (slice, slice), optional
+        The science region inside the reference pixels (default: the frame).
+    scale : float or ndarray (ny, nx)
+        Electrons per data unit
+        (:func:`~ipc_taichi.products.conventions.charge_scale`); pixels
+        without a usable per-pixel gain are left out.
+    pedestal : ndarray (ny, nx), optional
+        Charge on the node before the first read, in electrons, as measured
+        (e.g. a zeroth read). The law sees ``data + pedestal``: decouple gives
+        ``D(M + P) - D(P)``, couple ``C(S + P) - C(P)``, so the frame keeps its
+        meaning (charge since the pedestal) while alpha is evaluated at the
+        charge really on the node.
+    ramp : bool
+        The frames along axis -3 are the groups of a ramp (the charge grows
+        from one to the next): decouple each integration's groups with warm
+        starts (:func:`ipc_taichi.decouple` ``warm_start=True``: each group
+        starts from the previous group's answer plus the new charge; the same
+        stopping rule, so the same tolerance as from scratch).
+    label : str
+        The file and array, for messages.
+    """
+
+    model: object
+    region: tuple = None
+    scale: object = 1.0
+    pedestal: object = None
+    ramp: bool = False
+    label: str = "data"
+
+
+class FrameBuffers:
+    """The float64 arrays of the frame before, done with, written again for
+    the next frame (a new array pays a page fault per page): its charge in
+    electrons and its decoupled answer. Each is taken once, and only when it
+    has the shape asked for."""
+
+    def __init__(self):
+        self.charge = None
+        self.answer = None
+
+    def take_charge(self, shape):
+        """The previous frame's charge array if it has ``shape`` (no longer held), else None."""
+        held, self.charge = self.charge, None
+        return held if held is not None and held.shape == tuple(shape) else None
+
+    def take_answer(self, shape):
+        """The previous frame's answer if it has ``shape`` (no longer held), else None."""
+        held, self.answer = self.answer, None
+        return held if held is not None and held.shape == tuple(shape) else None
+
+
+class named:
+    """Context manager: a :class:`DivergenceError` raised inside is raised
+    again with ``where`` (the file, HDU and frame) in front of its message."""
+
+    def __init__(self, where):
+        self.where = where
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, exc_type, exc, tb):
+        if exc_type is not None and issubclass(exc_type, DivergenceError):
+            raise DivergenceError(f"{self.where}: {exc}") from None
+        return False
+
+
+def correct_frames(data, plan, settings=RunSettings(), *, mask=None, out=None, noise=None,
+                   record=None):
+    """Couple or decouple every 2-D frame of ``data`` by the product rules.
+
+    The pure correction function under every product reader/writer.
+
+    Parameters
+    ----------
+    data : ndarray, shape (..., ny, nx)
+        The science array in its own units (any real dtype).
+    plan : ArrayPlan or FramePlan
+        The array's plan: its ``model``, ``region``, ``scale``, ``pedestal``,
+        ``ramp`` and ``label`` (see :class:`FramePlan`).
+    settings : RunSettings
+        The run's operation, stopping rule, runtime, unphysical rule and
+        progress reporter.
+    mask : ndarray of bool, optional
+        Untrusted pixels (True), broadcastable to ``data``: they keep their
+        values and do not couple
+        (:func:`~ipc_taichi.products.conventions.untrusted`).
+    out : ndarray, optional
+        Where to write (same shape as ``data``; default: a float64 copy).
+        Pixels outside the region and masked pixels are copied from ``data``.
+    noise : dict, optional
+        The product's noise arrays beside ``data`` (``err``, ``var_poisson``, ``var_rnoise``,
+        ``var_flat``; each of ``data``'s shape, float64, C-contiguous, data units), replaced in
+        place, frame by frame, by their values after the decoupler with this frame's region,
+        model, mask, scale and pedestal (:func:`ipc_taichi.noise.propagate_noise`). Decouple only.
+    record : Unphysical, optional
+        Where the unflagged unphysical pixels are counted (default: a new
+        one with ``settings.unphysical``); said in one warning line for the
+        whole array.
+
+    Returns
+    -------
+    out : ndarray
+    infos : list of DecoupleInfo (decouple) or of None (couple), one per frame.
+    """
+    data = np.asarray(data)
+    shape = data.shape
+    ny, nx = shape[-2:]
+    region = plan.region or (slice(0, ny), slice(0, nx))
+    operation = settings.operation
+    frames = data.reshape((-1, ny, nx))
+    masks = None if mask is None else np.broadcast_to(mask, shape).reshape((-1, ny, nx))
+    if out is None:
+        out = np.array(data, dtype=np.float64)
+    else:  # the region is written frame by frame below; the rest kept from data
+        _copy_outside(out, data, region)
+    flat_out = out.reshape((-1, ny, nx))
+    science = frames[:1, region[0], region[1]].shape[1:]
+    units = _Units(plan.scale, region)
+    base = None if plan.pedestal is None else np.asarray(plan.pedestal, np.float64)[region]
+    after_frame, after_iteration = reporters(settings.progress, frames.shape[0],
+                                             settings.max_iter)
+    solver = _Solver(plan.model, settings, after_iteration, base)
+    record = record if record is not None else Unphysical(settings.unphysical)
+    offset = (region[0].start or 0, region[1].start or 0)
+    if any(not v.flags.c_contiguous for v in (noise or {}).values()):
+        raise ValueError("correct_frames: noise arrays must be C-contiguous (updated in place)")
+    noisy = {k: v.reshape((-1, ny, nx)) for k, v in (noise or {}).items()
+             if operation == "decouple"}
+    infos, lost = [], LostFrames(frames.shape[0])
+    groups = shape[-3] if plan.ramp and operation == "decouple" and len(shape) > 2 else 1
+    for k0 in range(0, frames.shape[0], groups):
+        check_stop()  # a SIGINT/SIGTERM swallowed by a library stops the run here
+        ks = range(k0, k0 + groups)
+        wheres = [f"{plan.label} frame {k}" if frames.shape[0] > 1 else plan.label for k in ks]
+        into = solver.buffers.take_charge(science) if groups == 1 else None
+        try:
+            measured, ms = zip(*(_frame_in(frames[k][region], units, base, record, where,
+                                           offset, operation,
+                                           None if masks is None else masks[k][region], into)
+                                 for k, where in zip(ks, wheres)))
+        except FrameLost as exc:  # one frame of a stack: left as it came, said
+            infos.append(lost.keep(exc, operation, groups))
+            flat_out[k0][region] = frames[k0][region]
+            continue
+        results, run_infos = solver.solve(measured, ms, wheres)
+        for k, y, m, result, info in zip(ks, measured, ms, results, run_infos):
+            result = units.back(result)
+            target = flat_out[k][region]
+            target[...] = result if m is None else np.where(m, frames[k][region], result)
+            if noisy:
+                _propagate(noisy, k, region, target, y, m, plan.model, units.inside, base)
+            infos.append(info)
+            if after_frame is not None:
+                after_frame(k + 1)
+        if groups == 1:
+            solver.buffers.charge = measured[0]
+    record.warn(plan.label)
+    if lost.said():
+        warnings.warn(lost.said(), ProductWarning, stacklevel=2)
+    return out, infos
+
+
+class _Units:
+    """Electrons per data unit of an array (``scale``) and of its science
+    region (``inside``)."""
+
+    def __init__(self, scale, region):
+        self.scale = np.asarray(scale, dtype=np.float64)
+        self.per_pixel = self.scale.ndim == 2
+        self.inside = self.scale[region] if self.per_pixel else self.scale
+        # the number 1: a pass saved, no bit changed
+        self.unit = self.inside.ndim == 0 and float(self.inside) == 1.0
+
+    def back(self, result):
+        """A result in electrons back in data units (no gain: masked by the caller)."""
+        if self.unit:
+            return result
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return result / self.inside
+
+
+def _frame_in(frame, units, base, record, where, offset, operation, flagged, into=None):
+    """One frame's measured charge (electrons) and its mask (None when none);
+    written into ``into`` (a float64 array of its shape the caller has done with)
+    when given."""
+    measured = frame.astype(np.float64) if into is None else into
+    if into is not None:
+        np.copyto(measured, frame, casting="unsafe")
+    if not units.unit:
+        measured *= units.inside
+    m = untrusted([], 0, measured.shape, flagged,
+                  gain=units.inside if units.per_pixel else None)
+    bad = record.add(measured if base is None else measured + base, m, where, offset)
+    if bad is not None:
+        m = bad if m is None else (m | bad)
+    good = np.isfinite(measured) if m is None else (np.isfinite(measured) & ~m)
+    if not good.any():
+        raise FrameLost(f"{where}: no finite, unmasked pixel to {operation} "
+                        "(all NaN, flagged or unphysical)")
+    return measured, m
+
+
+def _copy_outside(out, data, region):
+    """``out = data`` outside ``region``, in four slabs (the frame loop writes
+    every pixel inside it: its result, or the input for a masked pixel)."""
+    (y0, y1, _), (x0, x1, _) = (r.indices(n) for r, n in zip(region, data.shape[-2:]))
+    for part in ((slice(0, y0), slice(None)), (slice(y1, None), slice(None)),
+                 (slice(y0, y1), slice(0, x0)), (slice(y0, y1), slice(x1, None))):
+        out[(Ellipsis,) + part] = data[(Ellipsis,) + part]
+
+
+class _Solver:
+    """The frames of one array through the decoupler or the forward model:
+    ``D(M + P) - D(P)`` with a pedestal ``P`` (its own answer computed once
+    per mask), the previous frame's buffers written again."""
+
+    def __init__(self, model, settings, callback, base):
+        self.model, self.settings, self.callback, self.base = model, settings, callback, base
+        self.buffers = FrameBuffers()
+        self.cached = {}  # the pedestal's answer, per mask
+
+    def solve(self, measured, masks, wheres):
+        """The frames (one, or the groups of one integration, warm-started)."""
+        if len(measured) == 1:
+            charge, mask, where = measured[0], masks[0], wheres[0]
+        else:
+            charge, where = np.stack(measured), f"{wheres[0]}-{wheres[-1].rsplit(' ', 1)[-1]}"
+            mask = None if all(m is None for m in masks) else np.stack(
+                [np.zeros(charge.shape[1:], bool) if m is None else m for m in masks])
+        if self.base is not None:
+            charge = charge + self.base
+        result, info = self.run(charge, mask, where, self.buffers)
+        results = [result] if len(measured) == 1 else list(result)
+        infos = [info] if len(measured) == 1 else list(info)
+        if self.base is not None:
+            for i, (m, w) in enumerate(zip(masks, wheres)):
+                key = None if m is None else m.tobytes()
+                if key not in self.cached:  # the pedestal through the same law, once per mask
+                    self.cached[key] = self.run(self.base, m, w)[0]
+                results[i] = results[i] - self.cached[key]
+        return results, infos
+
+    def run(self, charge, mask, where, buffers=None):
+        """One frame in electrons (or a ramp's groups: warm-started); ``buffers``
+        (a :class:`FrameBuffers` or None): the previous frame's answer, done
+        with, is written again, this one kept."""
+        s = self.settings
+        out = None if buffers is None else buffers.take_answer(np.shape(charge))
+        with warnings.catch_warnings(), named(where):
+            warnings.simplefilter("ignore", ConvergenceWarning)  # reported per frame by callers
+            if s.operation == "decouple":
+                result, info = decouple(charge, model=self.model, mask=mask,
+                                        max_iter=s.max_iter, tol=s.tol, arch=s.arch,
+                                        precision=s.precision, full_output=True,
+                                        callback=self.callback,
+                                        warm_start=np.ndim(charge) == 3, out=out)
+                if buffers is not None and type(result) is np.ndarray and result.ndim == 2:
+                    buffers.answer = result
+            else:
+                result, info = couple(charge, model=self.model, mask=mask, arch=s.arch,
+                                      precision=s.precision), None
+        return np.asarray(np.ma.getdata(result), dtype=np.float64), info
+
+
+def _propagate(noisy, k, region, solution, measured, mask, model, s_in, base):
+    """Frame ``k`` of the noise arrays through the linearised decoupler, in place."""
+    given = {name: array[k][region] for name, array in noisy.items()}
+    with np.errstate(divide="ignore", invalid="ignore"):
+        y = measured / s_in
+    new = noise.propagate_noise(np.asarray(solution, dtype=np.float64), model, measured=y,
+                                mask=mask, scale=s_in, pedestal=base, **given)
+    for name, value in new.items():
+        given[name][...] = value
