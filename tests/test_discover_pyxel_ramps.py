@@ -82,6 +82,21 @@ def test_pyxel_trap_persistence_is_not_named_persistence(tmp_path):
     assert any("off the model" in line for line in report["unexplained"])
 
 
+@pytest.mark.slow  # about 20 s: Pyxel's persistence kernel, and a search with a persistence grid
+def test_pyxel_after_image_on_a_dark_ramp_is_persistence_but_incomplete(tmp_path):
+    """simple_persistence, a bright integration then one of background only: the
+    release is named persistence (measured 0.0145-0.0147 of the earlier charge,
+    tau 2.8 s: Pyxel's steps of 3 s with its 5 s traps release 60 % a step),
+    and the verdict stays incomplete (the capture during the bright ramp)."""
+    report = _discover(tmp_path, "persistence_dark")
+    step = report["steps"][0]
+    assert step["effect"] == "persistence"
+    assert 0.005 < step["params"]["fraction"] < 0.03
+    assert 1.5 < step["params"]["tau_s"] < 5.0
+    assert step["explained_fraction"] > 0.6
+    assert not report["complete"] and report["unexplained"]
+
+
 def test_pyxel_dark_current_is_outside_the_ramp_vocabulary(tmp_path):
     """simple_dark_current 20 e-/s: the ramp search has no dark current; every
     candidate refused, incomplete, and the words say every read is off."""

@@ -33,6 +33,9 @@ EFFECTS = {
     "persistence": [("charge_collection", {
         "name": "persistence", "func": "pyxel.models.charge_collection.simple_persistence",
         "arguments": {"trap_time_constants": [5.0], "trap_densities": [0.02]}})],
+    "persistence_dark": [("charge_collection", {
+        "name": "persistence", "func": "pyxel.models.charge_collection.simple_persistence",
+        "arguments": {"trap_time_constants": [5.0], "trap_densities": [0.02]}})],
     "pink_noise": [("charge_measurement", {
         "name": "pink", "func": "pyxel.models.charge_measurement.correlated_pink_noise_cmos",
         "arguments": {"std": 6.0}})],
@@ -54,13 +57,15 @@ EFFECTS = {
         "arguments": {"dark_rate": 20.0}})],
 }
 # the starting law the file states: the constant part of Pyxel's kernel is known
+# which integrations have the patches (else the background only); one when not named
+LIGHTS = {"persistence": (True, True), "persistence_dark": (True, False)}
 IPCLAW = {name: "constant:0.0125" for name in ("ipc_null", "diagonal_ipc", "anisotropic_ipc")}
 
 
-def _config(effect, times, noise=True):
+def _config(effect, times, noise=True, patches=True):
     light = [{"name": "background", "func": "pyxel.models.photon_collection.illumination",
               "arguments": {"level": BACKGROUND}}]
-    for i, (level, size, centre) in enumerate(PATCHES):
+    for i, (level, size, centre) in enumerate(PATCHES if patches else []):
         light.append({"name": f"patch{i}", "func": "pyxel.models.photon_collection.illumination",
                       "arguments": {"level": level, "option": "rectangular",
                                     "object_size": list(size), "object_center": list(centre)}})
@@ -120,26 +125,29 @@ def _run(cfg, detector=None):
     return np.asarray(result["/bucket"]["signal"], dtype=np.float64) / CVF
 
 
-def scene_rate():
+def scene_rate(patches=True):
     """The light's rate (e-/s) as Pyxel makes it: one noiseless second."""
-    return _run(_load(_config("null", [1.0], noise=False)))[0]
+    return _run(_load(_config("null", [1.0], noise=False, patches=patches)))[0]
 
 
-def pyxel_ramps(effect, seed, n_ints=None):
+def pyxel_ramps(effect, seed):
     """The reads ``(n_ints, NREADS, ny, nx)`` in electrons of ``effect`` (a key of
-    ``EFFECTS``), Pyxel's generators seeded through NumPy's global state. Persistence
-    takes two integrations of the same detector object (its traps kept between them)."""
-    n_ints = n_ints or (2 if effect == "persistence" else 1)
+    ``EFFECTS``), Pyxel's generators seeded through NumPy's global state; the
+    integrations' light as ``LIGHTS`` says, all on the same detector object (so
+    persistence's traps are kept from one integration to the next)."""
     times = TFRAME * np.arange(1, NREADS + 1)
     np.random.seed(seed)
-    cfg = _load(_config(effect, times))
-    detector = cfg.detector
-    reads = [_run(cfg, detector) for _ in range(n_ints)]
+    detector, reads = None, []
+    for patches in LIGHTS.get(effect, (True,)):
+        cfg = _load(_config(effect, times, patches=patches))
+        detector = detector if detector is not None else cfg.detector
+        reads.append(_run(cfg, detector))
     return np.stack(reads)
 
 
-def write_ramp_file(path, reads, rate, ipclaw="constant:0"):
-    """The discovery ramp format, written by astropy from the format document."""
+def write_ramp_file(path, reads, rates, ipclaw="constant:0"):
+    """The discovery ramp format, written by astropy from the format document;
+    ``rates`` one SCENE (e-/s) per integration."""
     from astropy.io import fits
 
     primary = fits.PrimaryHDU()
@@ -147,7 +155,7 @@ def write_ramp_file(path, reads, rate, ipclaw="constant:0"):
     primary.header["SHOTNOIS"] = True
     primary.header["IPCLAW"] = ipclaw
     hdus = [primary]
-    for k, ramp in enumerate(reads, start=1):
+    for k, (ramp, rate) in enumerate(zip(reads, rates), start=1):
         scene = fits.ImageHDU(np.asarray(rate, dtype=np.float64), name="SCENE")
         scene.header["EXTVER"] = k
         meas = fits.ImageHDU(np.asarray(ramp, dtype=np.float64), name="MEASURED")
@@ -162,5 +170,6 @@ def write_ramp_file(path, reads, rate, ipclaw="constant:0"):
 
 
 def make(effect, seed, path):
-    return write_ramp_file(path, pyxel_ramps(effect, seed), scene_rate(),
+    rates = [scene_rate(patches) for patches in LIGHTS.get(effect, (True,))]
+    return write_ramp_file(path, pyxel_ramps(effect, seed), rates,
                            IPCLAW.get(effect, "constant:0"))
