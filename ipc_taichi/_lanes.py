@@ -48,6 +48,7 @@ below uses ``0 - x``, compares and selects instead.
 import numpy as np
 
 from ._alpha import make_alpha
+from ._stepparts import law_functions
 
 __all__ = ["LANES", "ALIGN", "padded_width", "aligned_zeros", "lanes_kernel"]
 
@@ -168,8 +169,7 @@ def _vector_functions(plan):
     offsets, r, vertical = config.offsets, config.reach, config.vertical
     lanes = LANES[config.precision]
     real = ti.f64 if config.precision == "f64" else ti.f32
-    carried = [k for k, (dy, _) in enumerate(offsets) if dy == 0]
-    constant, gated = config.law_kind == "constant", config.uses_ok
+    gated = config.uses_ok
     shifted, pair, ring_row, combined_flow = _pair_functions(plan)
 
     @ti.func
@@ -196,14 +196,15 @@ def _vector_functions(plan):
                     carry: ti.template(), s, i, j, c, nc, last, ring_last, sv, okc, a_plus,
                     k: ti.template()):
         """The alpha of the pairs (p - u, p) of offset ``k`` for vector ``c``:
-        fresh (constant law), carried along the row (``dy == 0``) or read back
+        where :meth:`~ipc_taichi._layouts.Layout.sources` says: fresh (constant
+        law), carried along the row (``dy == 0``, one vector each) or read back
         from the ring (``dy > 0``); stores ``a_plus`` for the pixels after."""
         dy, dx = ti.static(offsets[k])
         a_minus = a_plus
-        if ti.static(constant):
+        if ti.static(plan.sources[k] == "fresh"):
             a_minus = pair(src, ok, bonds, table, coef, c, nc, last, sv, okc, -dy, -dx)
-        elif ti.static(dy == 0):
-            at = ti.static(carried.index(k) * lanes)
+        elif ti.static(plan.sources[k] == "row"):
+            at = ti.static(plan.carry_at[k])
             a_minus = ti.Vector([carry[at + q] for q in ti.static(range(lanes - dx, lanes))]
                                 + [a_plus[q] for q in ti.static(range(lanes - dx))], dt=real)
             for q in ti.static(range(lanes)):
@@ -259,8 +260,8 @@ def _lane_functions(lanes):
     return largest, magnitude
 
 
-def lanes_kernel(plan, coefficients, spread):
-    """The ``lanes`` layout's step for a :class:`~ipc_taichi._kernels.StepPlan`
+def lanes_kernel(plan, spread):
+    """The ``lanes`` layout's step for a :class:`~ipc_taichi._layouts.StepPlan`
     (the arguments of the other layouts' steps, the frame arrays as vectors;
     ``width``: the frame's width, ``strip``: rows per task, ``spread``: see
     ``step_sweep`` in :mod:`ipc_taichi._kernels`)."""
@@ -272,8 +273,7 @@ def lanes_kernel(plan, coefficients, spread):
     vectors = ti.types.ndarray(dtype=ti.types.vector(lanes, real), ndim=1)
     scalars = ti.types.ndarray(dtype=real, ndim=1)
     small = ti.types.ndarray(dtype=real, ndim=2)
-    carry_size = max(1, sum(1 for dy, _ in config.offsets if dy == 0)) * lanes
-    rings = len(config.vertical) > 0 and config.law_kind != "constant"
+    coefficients = law_functions(plan)[0]
     prologue, vector_flow = _vector_functions(plan)
     largest, magnitude = _lane_functions(lanes)
 
@@ -294,12 +294,12 @@ def lanes_kernel(plan, coefficients, spread):
                 coef = coefficients(p, w)
                 i0 = s * strip
                 i1 = ti.min(h, i0 + strip)
-                if ti.static(rings):
+                if ti.static(plan.rings):
                     prologue(src, ok, bonds, table, coef, ring, s, i0, nc, last)
                 dmax = ti.Vector([0.0] * lanes, dt=real)
                 smax = ti.Vector([0.0] * lanes, dt=real)
                 for i in range(i0, i1):
-                    carry = ti.Vector([0.0] * carry_size, dt=real)
+                    carry = ti.Vector([0.0] * plan.carry_size, dt=real)
                     for j in range(nc):
                         c = (i + r) * nc + j
                         sv = src[c]
