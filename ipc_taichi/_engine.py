@@ -46,17 +46,11 @@ from ._device import (
 )
 from ._frames import finite_sum
 from ._inputs import Frames, as_result, as_stack
-from ._kernels import (
-    FrameKernels,
-    KernelConfig,
-    get_frame_kernels,
-    get_step_kernel,
-    kernel_law_kind,
-)
-from ._lanes import LANES, aligned_zeros, padded_width
+from ._kernels import FrameKernels, KernelConfig, get_frame_kernels, kernel_law_kind
 from ._launch import fast
+from ._layouts import STRIP_ROWS, default_layout, get_step_kernel, kernel_layout
 from ._warm import WarmStart
-from ._workspace import STRIP_ROWS, Workspace, interior
+from ._workspace import Workspace, interior
 from .errors import IPCInputError
 
 WORKSPACES_KEPT = 2  # frame shapes whose buffers stay allocated
@@ -71,15 +65,6 @@ __all__ = ["as_stack", "Frames", "Workspace", "run_couple", "run_decouple", "int
 
 def start(arch, precision):
     return runtime.init(arch, precision)
-
-
-def default_layout(arch, device_buffers=False):
-    """The kernel layout that suits ``arch`` (see :mod:`ipc_taichi._kernels`):
-    ``lanes`` on the CPU (host arrays), ``sweep`` for host arrays handled as
-    device buffers (the test path), ``pixel`` on CUDA."""
-    if arch == "cuda":
-        return "pixel"
-    return "sweep" if device_buffers else "lanes"
 
 
 # Taichi has one runtime per process, with one buffer of kernel temporaries
@@ -176,23 +161,15 @@ def _bond_arrays(bonds, info, config, device_buffers):
     rule (:meth:`~ipc_taichi.bondmap.BondMap.padded`), in the working precision,
     at the same index as the padded frames (``lanes``: rows as wide as its
     frames' padded rows, 64-byte aligned); 3-D ``[k, y, x]`` on the device path,
-    flat on the host (the maps one after the other)."""
+    on the host as the layout's kernel reads it (:meth:`~ipc_taichi._layouts.Layout.bond_array`)."""
     key = (id(bonds), info.arch, info.precision, config.layout, device_buffers)
     hit = _bond_cache.get(key)
     if hit is not None and hit[0] is bonds:
         _bond_cache.move_to_end(key)
         return hit[1]
     padded = bonds.padded(config.reach, info.dtype)
-    if config.layout == "lanes":
-        n, py, px = padded.shape
-        wide = aligned_zeros((n, py, padded_width(px - 2 * config.reach, config.reach,
-                                                  info.precision)), info.dtype)
-        wide[:, :, :px] = padded
-        array = wide.reshape(-1, LANES[info.precision])
-    elif device_buffers:
-        array = _to_taichi(padded)
-    else:
-        array = padded.reshape(-1)
+    array = _to_taichi(padded) if device_buffers \
+        else kernel_layout(config.layout).bond_array(padded, config.reach, info.precision)
     while len(_bond_cache) >= WORKSPACES_KEPT:
         _bond_cache.popitem(last=False)
     _bond_cache[key] = (bonds, array)
@@ -379,18 +356,8 @@ class _Run:
         kernel = get_step_kernel(config)
         if self.device_buffers:
             kernel = fast(kernel)
-        ok, table, ring, bonds = ws.ok, self.table, ws.ring, self.bonds
-        if config.layout == "lanes":  # vectors of L pixels; the measured frame padded
-            lanes = LANES[config.precision]
-            ok = ws.ok_array() if config.uses_ok else ws.no_ok
-            src, base, dst, ok, ring = (_flat(a).reshape(-1, lanes)
-                                        for a in (src, ws.measured, dst, ok, ring))
-            table = _flat(table)
-            if not config.mapped:  # unused: any vectors
-                bonds = ok
-        elif config.flat:
-            src, base, dst, ok, table, ring = (_flat(a) for a in (src, base, dst, ok, table,
-                                                                  ring))
+        src, base, dst, ok, bonds, table, ring = ws.layout.arguments(ws, config, src, base, dst,
+                                                                     self.table, self.bonds)
         kernel(src, base, dst, ok, bonds, self.p, self.w, table, float(sign), ws.partials,
                ring, ws.strip, ws.shape[1])
 
@@ -459,11 +426,7 @@ def _load_host(host, bad, io, ws, shift=None):
             np.copyto(io, host)
         io[bad_px] = 0.0
         base = io
-    ws.start = ws.prev
-    if ws.measured is not None:  # lanes: the step reads the measured frame padded
-        interior(ws.measured, ws.reach, ws.shape)[...] = base
-        if shift is None:  # S_0 = M: the first step reads the measured frame itself
-            ws.start = ws.measured
+    ws.place_measured(base, warm=shift is not None)
     start = interior(ws.prev, ws.reach, ws.shape)
     if shift is not None:  # a warm start, S_0 = M + shift, in the same pass
         np.add(base, shift, out=start)
@@ -475,11 +438,6 @@ def _load_host(host, bad, io, ws, shift=None):
         interior(ws.ok_array(), ws.reach, ws.shape)[...] = True if good is None else good
         ws.ok_clean = not any_bad
     return base, any_bad
-
-
-def _flat(array):
-    """A C-contiguous array as 1-D, without a copy (an error if one were needed)."""
-    return np.reshape(array, -1, copy=False)
 
 
 def _uploadable(array, dtype):

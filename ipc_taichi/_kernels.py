@@ -44,9 +44,11 @@ CPU each extra parallel task costs a wake-up of the thread pool, more than the
 few dozen comparisons. A maximum is exact in any order, so the result does not
 depend on the layout or the reduction.
 
-Three loop layouts, chosen at compile time (``KernelConfig.layout``): the two
-below, and ``lanes`` (the CPU's default), the ``sweep`` on vectors of ``L``
-pixels, SIMD, bit-identical to it (:mod:`ipc_taichi._lanes`).
+Three loop layouts, chosen at compile time (``KernelConfig.layout``, the name
+of one of the layout objects of :mod:`ipc_taichi._layouts`, which own every
+choice that depends on it): the two below, and ``lanes`` (the CPU's default),
+the ``sweep`` on vectors of ``L`` pixels, SIMD, bit-identical to it
+(:mod:`ipc_taichi._lanes`).
 
 ``sweep`` (CPU)
     Rows are cut into strips, one strip per task; a task sweeps its rows left
@@ -72,7 +74,8 @@ pixels, SIMD, bit-identical to it (:mod:`ipc_taichi._lanes`).
     runs on the CPU, which is how it is tested without a GPU.
 
 A constant law without ``ok`` gating (no bad pixel, the ``zero`` edge) takes
-the flow with coefficients combined once per thread (:attr:`StepPlan.combined`):
+the flow with coefficients combined once per thread
+(:attr:`~ipc_taichi._layouts.StepPlan.combined`):
 ``sum_k a w[k, 1] S(p+u) + a w[k, 0] S(p-u) - (a sum_k (w[k, 0] + w[k, 1])) S(p)``,
 two multiply-adds per offset instead of ten operations (1.2-1.4x faster per
 iteration; the same values to rounding: at most one float32 unit, 4e-15
@@ -88,9 +91,11 @@ the one place it evaluates a pair. A step without a map takes the argument and
 never reads it: its code is the map-less one.
 
 Compile-time (``ti.static``) choices form a frozen, hashable config
-(:class:`KernelConfig`); :class:`StepPlan` adds what follows from it (where
-each carried alpha lives), and :func:`get_step_kernel` composes a layout's
-kernel from small named device functions built on that plan
+(:class:`KernelConfig`); its layout's :class:`~ipc_taichi._layouts.StepPlan`
+adds what follows from it (where each carried alpha lives), and
+:func:`~ipc_taichi._layouts.get_step_kernel` has the layout compose its kernel
+(:func:`sweep_kernel`, :func:`pixel_kernel`, :func:`ipc_taichi._lanes.lanes_kernel`)
+from small named device functions built on that plan
 (:mod:`ipc_taichi._stepparts`). On the host the arrays are passed flat
 (``KernelConfig.flat``): Taichi's CPU code reloads a 2-D array's shape and
 data pointer at every access, which cost the sweep 1.3-1.5x. Law
@@ -105,7 +110,6 @@ from dataclasses import dataclass
 from . import runtime
 from ._alpha import kernel_law_kind, make_alpha, make_exp
 from ._frames import MAX_FINITE, FrameKernels, get_frame_kernels
-from ._lanes import lanes_kernel
 from ._stepparts import (
     access_functions,
     arg_types,
@@ -117,14 +121,12 @@ from ._stepparts import (
     start_functions,
 )
 
-__all__ = ["KernelConfig", "StepPlan", "alpha_sources", "get_step_kernel", "get_frame_kernels",
-           "get_reduce_kernel", "LAYOUTS", "STRIP_LAYOUTS", "partials_count", "tree_rows", "FAN_IN",
-           "TREE_LEVELS", "MAX_FINITE", "FrameKernels",
+__all__ = ["KernelConfig", "sweep_kernel", "pixel_kernel", "get_frame_kernels",
+           "get_reduce_kernel", "SPREAD", "tree_rows", "FAN_IN", "TREE_LEVELS", "MAX_FINITE",
+           "FrameKernels",
            # the device law, from ._alpha
            "kernel_law_kind", "make_alpha", "make_exp"]
 
-LAYOUTS = ("sweep", "pixel", "lanes")
-STRIP_LAYOUTS = ("sweep", "lanes")  # one task per strip of rows, one partials row per strip
 SPREAD = 512  # ``sweep`` layout: loop iterations per strip (see step_sweep)
 FAN_IN = 32  # entries one thread reduces per tree level
 TREE_LEVELS = 5  # tree passes: up to FAN_IN ** TREE_LEVELS (33.5 M) partials
@@ -137,7 +139,7 @@ class KernelConfig:
     edge: str  # "zero" | "isolated"
     masked: bool
     precision: str  # "f64" | "f32"
-    layout: str = "sweep"  # "sweep" (CPU) | "pixel" (CUDA)
+    layout: str = "sweep"  # "sweep" | "pixel" | "lanes" (see ipc_taichi._layouts)
     # arrays passed flat (1-D, row-major) and indexed as row * width + column,
     # as the host path does (Taichi's CPU code reloads a 2-D array's shape at
     # every access); False: 2-D Taichi ndarrays, the device path
@@ -172,13 +174,6 @@ def tree_rows(n):
     ``n`` entries: 1 up to ``FAN_IN ** TREE_LEVELS`` entries, more beyond
     (a frame wider than that many columns); the host takes their maximum."""
     return -(-n // FAN_IN ** TREE_LEVELS)
-
-
-def partials_count(layout, height, width, strip):
-    """Rows of the ``partials`` array a step on a ``height x width`` frame
-    (unpadded) writes: one per strip (sweep) or per column run (pixel)."""
-    strips = -(-height // strip)
-    return strips if layout in STRIP_LAYOUTS else strips * width
 
 
 def make_tree_reduction():
@@ -243,107 +238,20 @@ def get_reduce_kernel(precision):
     return reduce_partials
 
 
-def alpha_sources(config):
-    """Where each half-stencil offset's second alpha (``a_minus``, the pair
-    with the neighbour at ``p - u``) comes from, per offset (static):
-
-    - ``"row"``: the sweep's registers, carried along the row (``dy == 0``);
-    - ``"ring"``: the sweep's ring buffer, written ``dy`` rows earlier;
-    - ``"column"``: the pixel layout's registers, carried down the column (``dx == 0``);
-    - ``"fresh"``: evaluated again (the pixel layout's other offsets, and every
-      offset of a constant law, whose alpha is one number: nothing to carry).
-    """
-    if config.law_kind == "constant":
-        return ("fresh",) * len(config.offsets)
-    if config.layout in STRIP_LAYOUTS:
-        return tuple("row" if dy == 0 else "ring" for dy, _ in config.offsets)
-    return tuple("column" if dx == 0 else "fresh" for _, dx in config.offsets)
+def _step_parts(plan):
+    """``(coefficients, pixel_flow, emit, starts)``: the device functions of
+    :mod:`ipc_taichi._stepparts` a scalar step is composed of."""
+    coefficients, pair, pair_of = law_functions(plan)
+    pixel_flow, emit = flow_functions(plan, pair, pair_of)
+    return coefficients, pixel_flow, emit, start_functions(plan, pair)
 
 
-@dataclass(frozen=True)
-class StepPlan:
-    """The compile-time plan of one step kernel: its :class:`KernelConfig` and
-    the static bookkeeping of the carried alphas, worked out once in plain
-    Python (:meth:`of`); every field is a ``ti.static`` value in the kernels."""
-
-    config: KernelConfig
-    sources: tuple  # per offset: where its a_minus comes from (alpha_sources)
-    carry_at: tuple  # per offset: its first row register (sweep, dy == 0)
-    vcarry_at: tuple  # per offset: its first column register (pixel, dx == 0)
-    ring_index: tuple  # per offset: its ring slot (dy > 0), else -1
-    left_extra: tuple  # per ring slot: columns left of 0 that later rows read back
-    right_extra: tuple  # per ring slot: columns right of the last that later rows read
-    prologue_lo: tuple  # per ring slot: the first column of the prologue rows
-    carry_size: int  # registers carried along a row (sweep) or down a column (pixel)
-
-    @classmethod
-    def of(cls, config):
-        if config.layout not in LAYOUTS:
-            raise ValueError(f"unknown kernel layout {config.layout!r}")
-        offsets, vertical = config.offsets, config.vertical
-        n_off = len(offsets)
-        n_carry = max(1, sum(dx for dy, dx in offsets if dy == 0))
-        n_vcarry = max(1, sum(dy for dy, dx in offsets if dx == 0))
-        return cls(
-            config=config, sources=alpha_sources(config),
-            carry_at=tuple(sum(ddx for ddy, ddx in offsets[:k] if ddy == 0)
-                           for k in range(n_off)),
-            vcarry_at=tuple(sum(ddy for ddy, ddx in offsets[:k] if ddx == 0)
-                            for k in range(n_off)),
-            ring_index=tuple(vertical.index(k) if k in vertical else -1 for k in range(n_off)),
-            left_extra=tuple(tuple(range(-offsets[k][1], 0)) for k in vertical),
-            right_extra=tuple(max(0, -offsets[k][1]) for k in vertical),
-            prologue_lo=tuple(min(0, -offsets[k][1]) for k in vertical),
-            carry_size=n_carry if config.layout == "sweep" else n_vcarry)
-
-    @property
-    def law_at(self):
-        """Where the law's 5 kernel parameters start among the coefficients."""
-        return 2 * len(self.config.offsets)
-
-    @property
-    def combined(self):
-        """Whether the flow is taken with pre-combined coefficients: a
-        constant law with no ``ok`` gating, where every pair's alpha is the
-        same number ``a``, so ``flow = sum_k (a w[k, 1] S(p+u) + a w[k, 0]
-        S(p-u)) - (a sum_k (w[k, 0] + w[k, 1])) S(p)``: 2 multiply-adds per
-        offset and one product, instead of 10 operations per offset."""
-        return (self.config.law_kind == "constant" and not self.config.uses_ok
-                and not self.config.mapped)
-
-    @property
-    def combined_at(self):
-        """Where the pre-combined coefficients start (:attr:`combined`): per
-        offset ``a w[k, 1]`` and ``a w[k, 0]``, then ``a sum_k (w[k, 0] + w[k, 1])``."""
-        return self.law_at + 5
-
-    @property
-    def total_at(self):
-        """Where ``a sum_k (w[k, 0] + w[k, 1])`` is, after the per-offset
-        pre-combined coefficients (:attr:`combined`)."""
-        return self.combined_at + 2 * len(self.config.offsets)
-
-    @property
-    def n_coef(self):
-        """Registers of ``coefficients``: two weights per offset, then the law's
-        5 parameters (a constant law's alpha last), then the pre-combined
-        coefficients when :attr:`combined`."""
-        return self.total_at + 1 if self.combined else self.combined_at
-
-    @property
-    def rings(self):
-        return "ring" in self.sources
-
-    @property
-    def carries_row(self):
-        return "row" in self.sources
-
-
-def _sweep_kernel(plan, coefficients, pixel_flow, emit, starts):
+def sweep_kernel(plan):
     """The ``sweep`` layout's step (see the module docstring)."""
     import taichi as ti
 
     real, r = real_type(plan), plan.config.reach
+    coefficients, pixel_flow, emit, starts = _step_parts(plan)
     ring_prologue, ring_row_ends, row_start, _ = starts
     frame, vector, mask, scratch, small, bond = arg_types(plan)
     cell = access_functions(plan)[0]
@@ -400,11 +308,12 @@ def _sweep_kernel(plan, coefficients, pixel_flow, emit, starts):
     return step_sweep
 
 
-def _pixel_kernel(plan, coefficients, pixel_flow, emit, starts):
+def pixel_kernel(plan):
     """The ``pixel`` layout's step, its maxima tree-reduced in the same launch."""
     import taichi as ti
 
     real, r = real_type(plan), plan.config.reach
+    coefficients, pixel_flow, emit, starts = _step_parts(plan)
     column_start = starts[3]
     frame, vector, mask, scratch, small, bond = arg_types(plan)
     cell = access_functions(plan)[0]
@@ -450,29 +359,7 @@ def _pixel_kernel(plan, coefficients, pixel_flow, emit, starts):
     return step_pixel
 
 
-@functools.cache
-def get_step_kernel(config):
-    """Build (once per config) the Taichi kernel for one coupling step.
-
-    Both layouts are built from the same device functions of one
-    :class:`StepPlan`: ``pair`` (one pair's alpha, gated by ``ok``),
-    ``pixel_flow`` (the coupling term of one pixel, each offset's second alpha
-    taken from where :func:`alpha_sources` says), ``emit`` (the new value
-    written) and the functions that start the carried alphas; the layouts
-    differ only in their loops and in what they carry.
-    """
-    plan = StepPlan.of(config)
-    coefficients, pair, pair_of = law_functions(plan)
-    pixel_flow, emit = flow_functions(plan, pair, pair_of)
-    if config.layout == "lanes":
-        return lanes_kernel(plan, coefficients, SPREAD)
-    starts = start_functions(plan, pair)
-    build = _sweep_kernel if config.layout == "sweep" else _pixel_kernel
-    return build(plan, coefficients, pixel_flow, emit, starts)
-
-
 def _clear_caches():
-    get_step_kernel.cache_clear()
     get_frame_kernels.cache_clear()
     get_reduce_kernel.cache_clear()
 

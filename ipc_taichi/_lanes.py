@@ -40,6 +40,13 @@ lanes only). The law is the other layouts' own,
 builds ``2**n`` as a product of powers of two chosen by compares: vectors
 have no bit casts here; the table law reads its four corners lane by lane).
 
+A thread's position (strip, row, vector, its index, the row's vectors and the
+arrays' last indices) travels to the device functions as one record
+(:func:`position_type`, a Taichi struct): the functions are inlined, so it
+compiles to the same arithmetic as the seven loose values it replaced (the
+recorded outputs hold bit for bit; one 1024x1024 decouple, 20 iterations, on a
+shared 2-core AMD EPYC: the same time as before within the machine's noise).
+
 Things this compilation mode does not take on a vector (they crash at compile
 time): unary minus, ``ti.abs``, ``ti.exp``, casts and bit casts; the code
 below uses ``0 - x``, compares and selects instead.
@@ -48,8 +55,9 @@ below uses ``0 - x``, compares and selects instead.
 import numpy as np
 
 from ._alpha import make_alpha
+from ._stepparts import law_functions
 
-__all__ = ["LANES", "ALIGN", "padded_width", "aligned_zeros", "lanes_kernel"]
+__all__ = ["LANES", "ALIGN", "padded_width", "aligned_zeros", "lanes_kernel", "position_type"]
 
 LANES = {"f64": 8, "f32": 16}
 """Pixels per vector: 64 bytes (one AVX-512 register, two AVX2 ones)."""
@@ -75,10 +83,23 @@ def aligned_zeros(shape, dtype, fill=0):
     return arr
 
 
+def position_type():
+    """The record of where a thread of the ``lanes`` step is (one Taichi
+    struct passed to the device functions): strip ``s``, frame row ``i``,
+    vector ``j`` of the row, ``c`` the index of that vector in the padded
+    arrays, ``nc`` vectors per padded row, ``last`` and ``ring_last`` the last
+    index of the frame arrays and of the ring."""
+    import taichi as ti
+
+    return ti.types.struct(s=ti.i32, i=ti.i32, j=ti.i32, c=ti.i32, nc=ti.i32, last=ti.i32,
+                           ring_last=ti.i32)
+
+
 def _pair_functions(plan):
     """``(shifted, pair, ring_row, combined_flow)``: a vector's neighbours
     ``dx`` columns away, the alphas of its pairs, where a ring row starts, and
-    the coupling term with pre-combined coefficients."""
+    the coupling term with pre-combined coefficients (``pos``: a
+    :func:`position_type` record)."""
     import taichi as ti
 
     config = plan.config
@@ -115,40 +136,41 @@ def _pair_functions(plan):
         return ti.Vector([coef[law_at + m] for m in ti.static(range(5))], dt=real)
 
     @ti.func
-    def bond(bonds: ti.template(), c, plane, nc, dy: ti.template(), dx: ti.template()):
+    def bond(bonds: ti.template(), pos, plane, dy: ti.template(), dx: ti.template()):
         """The factors of the bonds (p, p + (dy, dx)) for the pixels p of vector
-        ``c``: the map of offset ``u = +-(dy, dx)`` (``plane`` vectors each, one
+        ``pos.c``: the map of offset ``u = +-(dy, dx)`` (``plane`` vectors each, one
         after the other), read at p (``u``) or at p - u (``-u``, shifted)."""
         k, back = ti.static(bond_index[(dy, dx)])
         if ti.static(back == 0):
-            return bonds[k * plane + c]
+            return bonds[k * plane + pos.c]
         else:
-            return shifted(bonds, k * plane + c + dy * nc, dx, bonds.shape[0] - 1)
+            return shifted(bonds, k * plane + pos.c + dy * pos.nc, dx, bonds.shape[0] - 1)
 
     @ti.func
     def pair(src: ti.template(), ok: ti.template(), bonds: ti.template(), table: ti.template(),
-             coef: ti.template(), c, nc, last, sv, okc, dy: ti.template(), dx: ti.template()):
-        """alpha of the pairs (p, p + (dy, dx)) for the pixels p of vector ``c``
+             coef: ti.template(), pos, sv, okc, dy: ti.template(), dx: ti.template()):
+        """alpha of the pairs (p, p + (dy, dx)) for the pixels p of vector ``pos.c``
         (``sv``: their signals, ``okc``: their ``ok``), gated by ``ok``; times
         the bonds' factors with a map (once per pair: both directions use it)."""
         a = sv * 0.0 + coef[law_at + 4]
         if ti.static(not constant):
-            a = alpha(sv, shifted(src, c + dy * nc, dx, last), law(coef), table)
+            a = alpha(sv, shifted(src, pos.c + dy * pos.nc, dx, pos.last), law(coef), table)
         if ti.static(gated):
-            a = a * (okc * shifted(ok, c + dy * nc, dx, last))
+            a = a * (okc * shifted(ok, pos.c + dy * pos.nc, dx, pos.last))
         if ti.static(mapped):
-            a = a * bond(bonds, c, src.shape[0], nc, dy, dx)
+            a = a * bond(bonds, pos, src.shape[0], dy, dx)
         return a
 
     @ti.func
-    def ring_row(s, kv: ti.template(), row, nc):
-        """Where frame row ``row``'s vectors of ring slot ``kv`` start (strip ``s``)."""
-        return ((s * slots + kv) * depth + (row + r) % depth) * nc
+    def ring_row(pos, kv: ti.template(), row):
+        """Where frame row ``row``'s vectors of ring slot ``kv`` start (strip ``pos.s``)."""
+        return ((pos.s * slots + kv) * depth + (row + r) % depth) * pos.nc
 
     @ti.func
-    def combined_flow(src: ti.template(), coef: ti.template(), c, nc, last, sv):
+    def combined_flow(src: ti.template(), coef: ti.template(), pos, sv):
         """The coupling term with pre-combined coefficients (``StepPlan.combined``)."""
         gain = sv * 0.0
+        c, nc, last = pos.c, pos.nc, pos.last
         for k in ti.static(range(len(offsets))):
             dy, dx = ti.static(offsets[k])
             gain = gain + (coef[combined_at + 2 * k] * shifted(src, c + dy * nc, dx, last)
@@ -168,68 +190,71 @@ def _vector_functions(plan):
     offsets, r, vertical = config.offsets, config.reach, config.vertical
     lanes = LANES[config.precision]
     real = ti.f64 if config.precision == "f64" else ti.f32
-    carried = [k for k, (dy, _) in enumerate(offsets) if dy == 0]
-    constant, gated = config.law_kind == "constant", config.uses_ok
+    gated = config.uses_ok
     shifted, pair, ring_row, combined_flow = _pair_functions(plan)
+    position = position_type()
 
     @ti.func
     def prologue(src: ti.template(), ok: ti.template(), bonds: ti.template(),
-                 table: ti.template(), coef: ti.template(), ring: ti.template(), s, i0, nc,
-                 last):
-        """The ring rows of the pairs that start in the dy rows above the strip."""
+                 table: ti.template(), coef: ti.template(), ring: ti.template(), start):
+        """The ring rows of the pairs that start in the dy rows above the strip
+        (``start``: the position of the strip's first row)."""
+        nc = start.nc
         for kv in ti.static(range(len(vertical))):
             dy, dx = ti.static(offsets[vertical[kv]])
-            for row in range(i0 - dy, i0):
-                at = ring_row(s, kv, row, nc)
+            for row in range(start.i - dy, start.i):
+                at = ring_row(start, kv, row)
                 for j in range(nc):
-                    c = (row + r) * nc + j
-                    sv = src[c]
+                    pos = position(s=start.s, i=row, j=j, c=(row + r) * nc + j, nc=nc,
+                                   last=start.last, ring_last=start.ring_last)
+                    sv = src[pos.c]
                     okc = sv
                     if ti.static(gated):
-                        okc = ok[c]
-                    ring[at + j] = pair(src, ok, bonds, table, coef, c, nc, last, sv, okc, dy,
-                                        dx)
+                        okc = ok[pos.c]
+                    ring[at + j] = pair(src, ok, bonds, table, coef, pos, sv, okc, dy, dx)
 
     @ti.func
     def minus_alpha(src: ti.template(), ok: ti.template(), bonds: ti.template(),
                     table: ti.template(), coef: ti.template(), ring: ti.template(),
-                    carry: ti.template(), s, i, j, c, nc, last, ring_last, sv, okc, a_plus,
-                    k: ti.template()):
-        """The alpha of the pairs (p - u, p) of offset ``k`` for vector ``c``:
-        fresh (constant law), carried along the row (``dy == 0``) or read back
+                    carry: ti.template(), pos, sv, okc, a_plus, k: ti.template()):
+        """The alpha of the pairs (p - u, p) of offset ``k`` for vector ``pos.c``:
+        where :meth:`~ipc_taichi._layouts.Layout.sources` says: fresh (constant
+        law), carried along the row (``dy == 0``, one vector each) or read back
         from the ring (``dy > 0``); stores ``a_plus`` for the pixels after."""
         dy, dx = ti.static(offsets[k])
         a_minus = a_plus
-        if ti.static(constant):
-            a_minus = pair(src, ok, bonds, table, coef, c, nc, last, sv, okc, -dy, -dx)
-        elif ti.static(dy == 0):
-            at = ti.static(carried.index(k) * lanes)
+        if ti.static(plan.sources[k] == "fresh"):
+            a_minus = pair(src, ok, bonds, table, coef, pos, sv, okc, -dy, -dx)
+        elif ti.static(plan.sources[k] == "row"):
+            at = ti.static(plan.carry_at[k])
             a_minus = ti.Vector([carry[at + q] for q in ti.static(range(lanes - dx, lanes))]
                                 + [a_plus[q] for q in ti.static(range(lanes - dx))], dt=real)
             for q in ti.static(range(lanes)):
                 carry[at + q] = a_plus[q]
         else:
             kv = ti.static(plan.ring_index[k])
-            a_minus = shifted(ring, ring_row(s, kv, i - dy, nc) + j, -dx, ring_last)
-            ring[ring_row(s, kv, i, nc) + j] = a_plus
+            a_minus = shifted(ring, ring_row(pos, kv, pos.i - dy) + pos.j, -dx, pos.ring_last)
+            ring[ring_row(pos, kv, pos.i) + pos.j] = a_plus
         return a_minus
 
     @ti.func
     def vector_flow(src: ti.template(), ok: ti.template(), bonds: ti.template(),
                     table: ti.template(), coef: ti.template(), ring: ti.template(),
-                    carry: ti.template(), s, i, j, c, nc, last, ring_last, sv):
-        """The coupling term of the pixels of vector ``c`` (row ``i``, vector ``j``)."""
+                    carry: ti.template(), pos, sv):
+        """The coupling term of the pixels of vector ``pos.c`` (row ``pos.i``,
+        vector ``pos.j``)."""
         okc = sv
+        c, nc, last = pos.c, pos.nc, pos.last
         if ti.static(gated):
             okc = ok[c]
         flow = sv * 0.0
         if ti.static(plan.combined):
-            flow = combined_flow(src, coef, c, nc, last, sv)
+            flow = combined_flow(src, coef, pos, sv)
         for k in ti.static(range(len(offsets) if not plan.combined else 0)):
             dy, dx = ti.static(offsets[k])
-            a_plus = pair(src, ok, bonds, table, coef, c, nc, last, sv, okc, dy, dx)
-            a_minus = minus_alpha(src, ok, bonds, table, coef, ring, carry, s, i, j, c, nc, last,
-                                  ring_last, sv, okc, a_plus, k)
+            a_plus = pair(src, ok, bonds, table, coef, pos, sv, okc, dy, dx)
+            a_minus = minus_alpha(src, ok, bonds, table, coef, ring, carry, pos, sv, okc, a_plus,
+                                  k)
             wp = coef[2 * k]  # weight of the move p -> p+u
             wm = coef[2 * k + 1]  # weight of the move p -> p-u
             flow = (flow + a_plus * (wm * shifted(src, c + dy * nc, dx, last) - wp * sv)
@@ -259,8 +284,8 @@ def _lane_functions(lanes):
     return largest, magnitude
 
 
-def lanes_kernel(plan, coefficients, spread):
-    """The ``lanes`` layout's step for a :class:`~ipc_taichi._kernels.StepPlan`
+def lanes_kernel(plan, spread):
+    """The ``lanes`` layout's step for a :class:`~ipc_taichi._layouts.StepPlan`
     (the arguments of the other layouts' steps, the frame arrays as vectors;
     ``width``: the frame's width, ``strip``: rows per task, ``spread``: see
     ``step_sweep`` in :mod:`ipc_taichi._kernels`)."""
@@ -272,10 +297,10 @@ def lanes_kernel(plan, coefficients, spread):
     vectors = ti.types.ndarray(dtype=ti.types.vector(lanes, real), ndim=1)
     scalars = ti.types.ndarray(dtype=real, ndim=1)
     small = ti.types.ndarray(dtype=real, ndim=2)
-    carry_size = max(1, sum(1 for dy, _ in config.offsets if dy == 0)) * lanes
-    rings = len(config.vertical) > 0 and config.law_kind != "constant"
+    coefficients = law_functions(plan)[0]
     prologue, vector_flow = _vector_functions(plan)
     largest, magnitude = _lane_functions(lanes)
+    position = position_type()
 
     @ti.kernel
     def step_lanes(src: vectors, base: vectors, dst: vectors, ok: vectors, bonds: vectors,
@@ -294,17 +319,21 @@ def lanes_kernel(plan, coefficients, spread):
                 coef = coefficients(p, w)
                 i0 = s * strip
                 i1 = ti.min(h, i0 + strip)
-                if ti.static(rings):
-                    prologue(src, ok, bonds, table, coef, ring, s, i0, nc, last)
+                if ti.static(plan.rings):
+                    prologue(src, ok, bonds, table, coef, ring,
+                             position(s=s, i=i0, j=0, c=(i0 + r) * nc, nc=nc, last=last,
+                                      ring_last=ring_last))
                 dmax = ti.Vector([0.0] * lanes, dt=real)
                 smax = ti.Vector([0.0] * lanes, dt=real)
                 for i in range(i0, i1):
-                    carry = ti.Vector([0.0] * carry_size, dt=real)
+                    carry = ti.Vector([0.0] * plan.carry_size, dt=real)
                     for j in range(nc):
                         c = (i + r) * nc + j
+                        pos = position(s=s, i=i, j=j, c=c, nc=nc, last=last,
+                                       ring_last=ring_last)
                         sv = src[c]
                         v = base[c] + sign * vector_flow(src, ok, bonds, table, coef, ring, carry,
-                                                         s, i, j, c, nc, last, ring_last, sv)
+                                                         pos, sv)
                         # border lanes (columns outside the frame) stay zero
                         x = ti.Vector([float(q) for q in ti.static(range(lanes))], dt=real) \
                             + ti.cast(j * lanes, real)

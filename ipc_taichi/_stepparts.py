@@ -1,6 +1,6 @@
 """The named device functions the step kernels of :mod:`ipc_taichi._kernels`
 are composed of, each built (in plain Python, once per kernel) from a
-:class:`~ipc_taichi._kernels.StepPlan`: array access (flat or 2-D,
+:class:`~ipc_taichi._layouts.StepPlan`: array access (flat or 2-D,
 :func:`access_functions`), the law and the pair alphas (:func:`law_functions`),
 one pixel's coupling term and its write (:func:`flow_functions`), the alphas
 carried into a strip, row or column run (:func:`start_functions`), the maxima's
@@ -114,7 +114,7 @@ def law_functions(plan):
 
     config, real, n_coef, law_at = plan.config, real_type(plan), plan.n_coef, plan.law_at
     constant_law = config.law_kind == "constant"
-    alpha = make_alpha(config.law_kind, config.precision, fast_exp=config.layout == "sweep",
+    alpha = make_alpha(config.law_kind, config.precision, fast_exp=plan.layout.fast_exp,
                        flat_table=config.flat)
     cell = access_functions(plan)[0]
     bond = make_bond(plan)
@@ -177,7 +177,7 @@ def law_functions(plan):
 
 def flow_functions(plan, pair, pair_of):
     """``(pixel_flow, emit)``: one pixel's coupling term (its alphas taken
-    from where :func:`alpha_sources` says), and the new value written."""
+    from where :meth:`~ipc_taichi._layouts.Layout.sources` says), and the new value written."""
     import taichi as ti
 
     offsets, sources, real = plan.config.offsets, plan.sources, real_type(plan)
@@ -200,7 +200,7 @@ def flow_functions(plan, pair, pair_of):
     @ti.func
     def combined_flow(src: ti.template(), coef: ti.template(), pw, y, x, sv):
         """The coupling term of a constant law without ``ok`` gating, from the
-        pre-combined coefficients (see :attr:`~ipc_taichi._kernels.StepPlan.combined`)."""
+        pre-combined coefficients (see :attr:`~ipc_taichi._layouts.StepPlan.combined`)."""
         at = ti.static(plan.combined_at)
         gain = ti.cast(0.0, real)
         for k in ti.static(range(len(offsets))):
@@ -238,7 +238,7 @@ def flow_functions(plan, pair, pair_of):
                 a_minus = ring_cell(ring, s, kv, i - dy + r, x - dx, pw)
                 ring_put(ring, s, kv, i + r, x, pw, a_plus)
             elif ti.static(sources[k] == "column"):
-                a_minus = shift_in(carry, plan.vcarry_at[k], dy, a_plus)
+                a_minus = shift_in(carry, plan.carry_at[k], dy, a_plus)
             else:
                 a_minus = pair(src, ok, bonds, table, coef, pw, y - dy, x - dx, dy, dx)
             flow = pair_flow(flow, src, coef, pw, y, x, sv, k, a_plus, a_minus)
@@ -312,7 +312,7 @@ def start_functions(plan, pair):
             dy, dx = ti.static(offsets[k])
             if ti.static(plan.sources[k] == "column"):
                 for m in ti.static(range(dy)):
-                    carry[plan.vcarry_at[k] + m] = pair(src, ok, bonds, table, coef, pw,
+                    carry[plan.carry_at[k] + m] = pair(src, ok, bonds, table, coef, pw,
                                                         i0 + r - dy + m, x, dy, 0)
 
     return ring_prologue, ring_row_ends, row_start, column_start

@@ -6,24 +6,12 @@ padded array.
 
 import numpy as np
 
-from . import _kernels
 from ._copies import HostCopies
 from ._device import ndarray_pointer, pinned_empty
-from ._kernels import STRIP_LAYOUTS, partials_count
-from ._lanes import aligned_zeros, padded_width
-from .errors import IPCInputError
+from ._layouts import kernel_layout
 
-__all__ = ["Workspace", "interior", "STRIP_ROWS", "PIXEL_THREADS", "MIN_RUN_ROWS",
-           "MAXIMA_SLOTS"]
+__all__ = ["Workspace", "interior", "MAXIMA_SLOTS"]
 
-# rows per task of the CPU sweep: a strip re-evaluates the dy-row pairs above
-# it (1/STRIP_ROWS extra work for nearest neighbours) and 2 cores need a few
-# dozen tasks to balance when other processes share them
-STRIP_ROWS = 32
-# threads the ``pixel`` layout aims for: an H100 keeps 132 x 2048 = 270 k
-# threads resident, twice that hides the tail of the last wave
-PIXEL_THREADS = 1 << 19
-MIN_RUN_ROWS = 8
 # steps whose maxima may be on their way to the host at once (two are: the
 # step the host waits for and the one launched ahead of it)
 MAXIMA_SLOTS = 4
@@ -55,35 +43,22 @@ class Workspace:
         r = config.reach
         self.shape = shape
         self.reach = r
-        self.layout = config.layout
+        self.layout = layout = kernel_layout(config.layout)
+        layout.check(device_buffers)
         self.device_buffers = device_buffers
         self.dtype = np.dtype(info.dtype)
-        lanes = config.layout == "lanes"
-        if lanes and device_buffers:
-            raise IPCInputError("layout 'lanes' runs on the CPU's own arrays only; use "
-                                "'sweep' or 'pixel'")
-        padded = (ny + 2 * r, padded_width(nx, r, info.precision) if lanes else nx + 2 * r)
-        if config.layout in STRIP_LAYOUTS:
-            self.strip = STRIP_ROWS
-        else:
-            self.strip = max(MIN_RUN_ROWS, -(-ny * nx // PIXEL_THREADS))
-            # fewer partials than the tree reduces to one row, unless the frame is
-            # wider than that (then maxima() reads the rows the tree leaves)
-            self.strip = max(self.strip,
-                             -(-ny * nx // _kernels.FAN_IN ** _kernels.TREE_LEVELS))
-        self.strip = min(self.strip, ny)
-        self.n_partials = partials_count(config.layout, ny, nx, self.strip)
+        padded = layout.padded_shape(shape, r, info.precision)
+        self.strip = layout.rows_per_task(ny, nx)
+        self.n_partials = layout.partials(ny, nx, self.strip)
         self._made = []
-        # lanes: vectors of L pixels, 64-byte aligned; ok as reals (1.0 = may couple)
-        self._aligned = lanes
         self.prev = self._zeros(padded, self.dtype)
         self.nxt = self._zeros(padded, self.dtype)
-        # lanes: the measured frame, padded as the step reads it (base)
-        self.measured = self._zeros(padded, self.dtype) if lanes else None
-        self.start = self.prev  # where the frame's S_0 is (the engine's load says)
+        # the measured frame, padded as the step reads it (lanes)
+        self.measured = self._zeros(padded, self.dtype) if layout.padded_base else None
+        self.start = self.prev  # where the frame's S_0 is (see place_measured)
         self._padded, self._edge = padded, config.edge
         self.ok = None
-        if lanes:  # reals (1.0 = may couple), made when first needed (see ok_array)
+        if layout.real_ok:  # reals (1.0 = may couple), made when first needed (see ok_array)
             self.no_ok = self._zeros((1, padded[1]), self.dtype)  # what a step without gating gets
             if config.edge == "isolated":
                 self.ok_array()
@@ -94,12 +69,7 @@ class Workspace:
             self.ok = self._ok_values(np.uint8)
             self._made.append(self.ok.nbytes)
         self.partials = self._zeros((self.n_partials, 2), self.dtype)
-        if config.layout in STRIP_LAYOUTS:
-            ring = (-(-ny // STRIP_ROWS), max(1, len(config.vertical)), config.ring_depth,
-                    padded[1])
-        else:
-            ring = (1, 1, 1, 1)
-        self.ring = self._zeros(ring, self.dtype)
+        self.ring = self._zeros(layout.ring_shape(config, ny, padded[1]), self.dtype)
         self.flag = self._zeros((1,), self.dtype)
         self.flag_bytes = self.dtype.itemsize
         self.no_mask = self._zeros((1, 1), np.uint8)
@@ -115,8 +85,7 @@ class Workspace:
         """``ok`` for a frame without bad pixels: border 1 (``zero`` edge) or 0
         (``isolated``), interior 1 (see ``ok_clean``)."""
         fill = 1 if self._edge == "zero" else 0
-        ok = aligned_zeros(self._padded, dtype, fill) if self._aligned \
-            else np.full(self._padded, fill, dtype=dtype)
+        ok = self.layout.host_zeros(self._padded, dtype, fill)
         interior(ok, self.reach, self.shape)[...] = 1
         return ok
 
@@ -129,11 +98,30 @@ class Workspace:
             self._made.append(self.ok.nbytes)
         return self.ok
 
+    def place_measured(self, base, warm):
+        """Where the frame's ``S_0`` is, after a host load of the measured
+        frame ``base`` (unpadded): ``prev`` (which the load fills), unless the
+        step reads the measured frame padded (``lanes``): then ``base`` goes
+        into ``measured``, and without a warm start the first step reads it
+        as ``S_0`` (no step writes it)."""
+        self.start = self.prev
+        if self.measured is not None:
+            interior(self.measured, self.reach, self.shape)[...] = base
+            if not warm:
+                self.start = self.measured
+        return self.start
+
+    def holding(self, q):
+        """The padded array holding ``S_q`` of the frame's Jacobi iterations:
+        ``start`` for ``S_0``, then ``nxt`` and ``prev`` in turn (the two
+        working arrays swap roles every iteration; their borders stay zero)."""
+        if q == 0:
+            return self.start
+        return self.nxt if q % 2 else self.prev
+
     def _zeros(self, shape, dtype, fill=0):
-        if self._aligned:
-            arr = aligned_zeros(shape, dtype, fill)
-        elif not self.device_buffers:
-            arr = np.full(shape, fill, dtype=dtype)
+        if not self.device_buffers:
+            arr = self.layout.host_zeros(shape, dtype, fill)
         else:
             import taichi as ti
 
@@ -185,10 +173,6 @@ class Workspace:
         else:
             self.flag[0] = 0
 
-    def _maxima_rows(self):
-        return self.n_partials if self.layout in STRIP_LAYOUTS \
-            else _kernels.tree_rows(self.n_partials)
-
     def maxima_start(self):
         """After a step's launch: its maxima on their way to the host. On CUDA
         an asynchronous copy of the rows the tree leaves into one of
@@ -197,7 +181,7 @@ class Workspace:
         Elsewhere the maxima themselves. Returns a handle for :meth:`maxima_wait`."""
         if not (self.device_buffers and self.copies.arch == "cuda"):
             return ("now", self.maxima())
-        n = self._maxima_rows()
+        n = self.layout.maxima_rows(self.n_partials)
         driver = self.copies.driver
         if self._slots is None:
             self._slots = pinned_empty((MAXIMA_SLOTS, n, 2), self.dtype, arch="cuda",
@@ -224,7 +208,7 @@ class Workspace:
         """``(max|dst - src|, max|dst|)`` of the last step: the maximum over the
         rows the tree leaves (``pixel``: row 0 unless the frame is wider than
         the tree's capacity) or over the strips' rows (``sweep``)."""
-        n = self._maxima_rows()
+        n = self.layout.maxima_rows(self.n_partials)
         if self.device_buffers:
             rows = np.empty((n, 2), dtype=self.dtype)
             self.copies.download(rows, self.partials)

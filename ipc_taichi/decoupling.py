@@ -177,12 +177,7 @@ def _iterate_ahead(step, ws, max_iter, tol, record):
     whose update, extrapolated geometrically from the last two, is expected
     to meet the rule (:func:`_launch_ahead`): a wrong guess costs one wait,
     never a different answer."""
-    start = ws.start
-    other = ws.prev if start is ws.measured else start
-
-    def buffer(q):  # the array holding S_q
-        return start if q == 0 else (ws.nxt if q % 2 else other)
-
+    buffer = ws.holding  # the array holding S_q
     pending = {1: step.launch(buffer(0), buffer(1))}
     q = 0
     for q in range(1, max_iter + 1):
@@ -212,22 +207,20 @@ def _launch_ahead(record, tol):
 
 
 def _iterate_here(step, ws, max_iter, tol, callback, record):
-    """Jacobi iterations from ``S_0`` in ``ws.start`` (loaded by the engine:
-    ``M``, or the warm start, in ``ws.prev``; on the ``lanes`` path without a
-    warm start, the padded measured frame itself, which no step writes);
-    returns the padded array holding the answer. The two working arrays swap
-    roles every iteration; their borders stay zero (never written)."""
-    prev, nxt = ws.start, ws.nxt
+    """Jacobi iterations from ``S_0``, where the engine loaded it (``M``, or
+    the warm start); step ``q`` reads ``ws.holding(q - 1)`` and writes
+    ``ws.holding(q)`` (the workspace's swap of its two working arrays);
+    returns the padded array holding the answer."""
+    q = 0
     for q in range(1, max_iter + 1):
-        dmax, smax = step(prev, nxt)
+        dmax, smax = step(ws.holding(q - 1), ws.holding(q))
         record.iterations = q
         record.max_delta.append(dmax)
         record.max_signal.append(smax)
         iteration.check_divergence(record.max_delta, record.max_signal)
-        prev, nxt = nxt, (ws.prev if prev is ws.measured else prev)
         if callback is not None:
-            callback(q, ws.estimate(prev))
+            callback(q, ws.estimate(ws.holding(q)))
         if iteration.met(dmax, smax, tol):
             record.converged = True
             break
-    return prev
+    return ws.holding(q)

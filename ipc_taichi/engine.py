@@ -20,7 +20,8 @@ Copies
     :class:`HostCopies`, array kinds (:func:`kind_of`) and stream order
     (:class:`torch_stream_order`).
 Kernels
-    :class:`KernelConfig`, :func:`get_step_kernel`, :func:`get_frame_kernels`,
+    :class:`KernelConfig`, the layout objects (:data:`LAYOUTS`, :func:`kernel_layout`),
+    :class:`StepPlan`, :func:`get_step_kernel`, :func:`get_frame_kernels`,
     :func:`get_reduce_kernel`, :func:`tree_rows`, :data:`FAN_IN`; the device law
     (:func:`make_alpha`, :func:`make_exp`, :func:`kernel_law_kind`);
     :func:`clear_kernels`.
@@ -33,7 +34,7 @@ Settings for a while
 
 import contextlib
 
-from . import _engine, _kernels, _workspace
+from . import _engine, _kernels, _layouts
 from ._alpha import kernel_law_kind, make_alpha, make_exp
 from ._copies import STAGE_CHUNK, HostCopies
 from ._device import (
@@ -55,15 +56,8 @@ from ._engine import (
     frame_copies,
     workspace_cache_info,
 )
-from ._kernels import (
-    FAN_IN,
-    KernelConfig,
-    StepPlan,
-    get_frame_kernels,
-    get_reduce_kernel,
-    get_step_kernel,
-    tree_rows,
-)
+from ._kernels import FAN_IN, KernelConfig, get_frame_kernels, get_reduce_kernel, tree_rows
+from ._layouts import LAYOUTS, StepPlan, get_step_kernel, kernel_layout
 
 __all__ = [
     # workspaces
@@ -75,6 +69,7 @@ __all__ = [
     "kind_of", "torch_stream_order",
     # kernels
     "KernelConfig", "StepPlan", "get_step_kernel", "get_frame_kernels", "get_reduce_kernel",
+    "LAYOUTS", "kernel_layout",
     "tree_rows",
     "FAN_IN", "make_alpha", "make_exp", "kernel_law_kind", "clear_kernels",
     # settings for a while
@@ -85,7 +80,7 @@ __all__ = [
 def clear_kernels():
     """Forget every compiled kernel and cached workspace (the next call
     compiles again): after a layout constant changed."""
-    _kernels._clear_caches()
+    _layouts.clear_kernels()
     clear_workspaces()
 
 
@@ -119,7 +114,7 @@ def pixel_runs(threads=None, min_rows=None):
     is). Cached workspaces are freed on entry and exit, as their run height
     was cut for the old values."""
     values = {"PIXEL_THREADS": threads, "MIN_RUN_ROWS": min_rows}
-    with _set(_workspace, **{k: v for k, v in values.items() if v is not None}):
+    with _set(_layouts, **{k: v for k, v in values.items() if v is not None}):
         clear_workspaces()
         try:
             yield
