@@ -20,11 +20,15 @@ install: $(STAMP)
 # Tests run Taichi on the CPU arch in f64; GPU tests (marker `gpu`) skip without CUDA.
 # `make test`: every test (CI); `make test-quick`: the development lane, without the
 # tests marked `slow` (full-size calibrations, the recorded kernel outputs).
+# TEST_WORKERS: pytest-xdist processes (default 2, each running Taichi on the CPU; 0 runs
+# the tests in this process, in file order).
+TEST_WORKERS ?= 2
+export TEST_WORKERS
 test: install
-	IPC_TAICHI_ARCH=cpu IPC_TAICHI_PRECISION=f64 $(BIN)/python -m pytest -q -m "not gpu"
+	IPC_TAICHI_ARCH=cpu IPC_TAICHI_PRECISION=f64 $(BIN)/python -m pytest -q -n $(TEST_WORKERS) -m "not gpu"
 
 test-quick: install
-	IPC_TAICHI_ARCH=cpu IPC_TAICHI_PRECISION=f64 $(BIN)/python -m pytest -q -m "not gpu and not slow"
+	IPC_TAICHI_ARCH=cpu IPC_TAICHI_PRECISION=f64 $(BIN)/python -m pytest -q -n $(TEST_WORKERS) -m "not gpu and not slow"
 
 # A CUDA machine: Python 3.12 and a CUDA build of PyTorch, in build/venv-gpu, without the
 # CPU lock (it pins a CPU torch for Python 3.11). --system-site-packages keeps a
