@@ -251,13 +251,6 @@ def _underscore_names_taken(path):
     return found
 
 
-# Underscore names taken across modules in packages other work is refactoring now
-# (issue 37), each with the helper that owns it; each must still be taken, so the
-# list can only shrink.
-_UNDERSCORE_TAKEN_ELSEWHERE = {
-    "ipc_taichi.engine -> ipc_taichi._kernels._clear_caches": "layout",
-}
-
 
 def test_no_module_takes_another_modules_underscore_names():
     """A module's underscore names are its own: no module of the library imports
@@ -272,8 +265,7 @@ def test_no_module_takes_another_modules_underscore_names():
                 continue
             (core if _is_private(name) and _is_private(owner) else taken).add(
                 f"{name} -> {where}")
-    assert taken - _UNDERSCORE_TAKEN_ELSEWHERE.keys() == set()
-    assert _UNDERSCORE_TAKEN_ELSEWHERE.keys() - taken == set(), "fixed: take it off the list"
+    assert taken == set()
     # the check sees real imports: the core's modules do share underscore names
     assert "ipc_taichi._copies -> ipc_taichi._device._contiguous" in core
 
