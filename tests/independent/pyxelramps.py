@@ -11,6 +11,7 @@ effect at a time is added with Pyxel's model for it (``EFFECTS``). MEASURED is
 e-/s, taken from a noiseless one-second Pyxel run of the same light.
 """
 
+import copy
 import os
 import tempfile
 
@@ -59,10 +60,13 @@ EFFECTS = {
 # the starting law the file states: the constant part of Pyxel's kernel is known
 # which integrations have the patches (else the background only); one when not named
 LIGHTS = {"persistence": (True, True), "persistence_dark": (True, False)}
+# Pyxel models with a generator of their own (numpy's default_rng(seed), fresh entropy when
+# the seed is None): given the ramp's seed, so that a file is the same at every run
+UNSEEDED = ("correlated_pink_noise_cmos",)
 IPCLAW = {name: "constant:0.0125" for name in ("ipc_null", "diagonal_ipc", "anisotropic_ipc")}
 
 
-def _config(effect, times, noise=True, patches=True):
+def _config(effect, times, noise=True, patches=True, seed=None):
     light = [{"name": "background", "func": "pyxel.models.photon_collection.illumination",
               "arguments": {"level": BACKGROUND}}]
     for i, (level, size, centre) in enumerate(PATCHES if patches else []):
@@ -77,7 +81,10 @@ def _config(effect, times, noise=True, patches=True):
               "charge_collection": [{"name": "collection",
                                      "func": "pyxel.models.charge_collection.simple_collection"}],
               "charge_measurement": []}
-    extra = EFFECTS[effect] if noise else []
+    extra = copy.deepcopy(EFFECTS[effect]) if noise else []
+    for _, model in extra:  # a generator of its own, unseeded unless told (default_rng(None))
+        if model["func"].endswith(UNSEEDED):
+            model["arguments"]["seed"] = seed
     measure = [m for g, m in extra if g == "ipc"] or [
         {"name": "measurement", "func": "pyxel.models.charge_measurement.simple_measurement"}]
     groups["charge_measurement"] += measure
@@ -139,7 +146,7 @@ def pyxel_ramps(effect, seed):
     np.random.seed(seed)
     detector, reads = None, []
     for patches in LIGHTS.get(effect, (True,)):
-        cfg = _load(_config(effect, times, patches=patches))
+        cfg = _load(_config(effect, times, patches=patches, seed=seed))
         detector = detector if detector is not None else cfg.detector
         reads.append(_run(cfg, detector))
     return np.stack(reads)
