@@ -30,7 +30,7 @@ As in the ``sweep``: one task per strip of rows, rows left to right, one
 vector (``L`` pixels) per step. A neighbour at ``(dy, dx)`` is the vector at
 the same place ``dy`` rows away, shifted by ``dx`` lanes with lanes from the
 vector beside it. Each pair's alpha is evaluated once: a pair along the row
-``(0, dx)`` is carried to the next vector in ``dx`` registers, a pair
+``(0, dx)`` is carried to the next vector (one vector of registers), a pair
 ``dy > 0`` rows down goes into a ring of rows and is read back ``dy`` rows
 later (shifted by ``dx`` lanes). Lanes in the border columns are computed
 with the rest and written as zero, which keeps the border what it was; a

@@ -57,7 +57,6 @@ class Layout:
 
     name = None
     fast_exp = False  # alpha's exponentials by the inlined polynomial (make_exp)
-    vectors = False  # frame arrays as vectors of L pixels, 64-byte aligned
     padded_base = False  # the step reads the measured frame padded (Workspace.measured)
     real_ok = False  # ``ok`` held as reals, made when first needed (Workspace.ok_array)
 
@@ -176,7 +175,6 @@ class Lanes(Layout):
     padded, ``ok`` as reals; the CPU's own arrays only."""
 
     name = "lanes"
-    vectors = True
     padded_base = True
     real_ok = True
 
