@@ -242,7 +242,8 @@ def _measure_sections(info, repeats, progress, notes, cuda_size, stack, pipeline
                       ramp_size, ramp_groups):
     """The sections after the floor, each in a subprocess of its own (the
     start-up row runs its own): ``{"pipeline", "ramp", "cuda", "calibrate",
-    "cliramp", "discover_ramps", "startup"}``, those run; a failed one None with a note in ``notes``."""
+    "cliramp", "discover_ramps", "startup"}``, those run; a failed one None with
+    a note in ``notes``."""
     found = {}
     if pipeline_size:
         if _has_module("jwst"):

@@ -260,7 +260,8 @@ def discover_ramp_file(path, kind, seed, nreads=6, level=40000.0, side=64, nramp
     ``side`` pixels of the active area are kept (the reference border is
     not in the file), and MEASURED's outer ``EDGE`` pixels are NaN: the
     flat goes on beyond the cut, which a model of the file alone cannot know
-    (it would couple those pixels to nothing outside). SCENE is the flat's rate ``ILLUMINATION * QE``, e-/s.
+    (it would couple those pixels to nothing outside). SCENE is the flat's
+    rate ``ILLUMINATION * QE``, e-/s.
     The header states what the simulator was told: ``IPCLAW`` its constant
     1 %, ``READNOIS`` its 10 e- with the DN quantization's ``GAIN^2 / 12``.
 
