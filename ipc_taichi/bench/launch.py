@@ -177,7 +177,7 @@ def run_benchmark(sizes=SIZES, kinds=KINDS, repeats=5, configs=None, progress=pr
     _add_ratios(rows)
     results = {"machine": info, "repeats": repeats, "notes": notes, "rows": rows,
                "floor": floor_model(info), "pipeline": None, "ramp": None, "calibrate": None,
-               "cuda": None, "startup": None, "cliramp": None}
+               "cuda": None, "startup": None, "cliramp": None, "discover_ramps": None}
     if measure:
         results["floor"]["measured"] = _launch({"config": "floor"}, "The floor measurement",
                                                notes)
