@@ -3,7 +3,7 @@
 ``tests/independent/waffle.py`` runs solid-waffle 26.0.0's simulator unchanged
 (no ipc_taichi) and writes its flats as discovery ramp files
 (:func:`~tests.independent.waffle.discover_ramp_file`: the central 128x128
-(64x64 with the non-linearity) of the active area, 5 reads of 3 s to 40 ke-,
+(48x48 with the non-linearity) of the active area, 5 reads of 3 s to 40 ke-,
 SCENE the flat's rate, the stated
 IPC 1 % as the starting law). What is asserted is what was measured
 (docs/discover.md, "Ramps made by solid-waffle"): the null names nothing; the
@@ -30,7 +30,7 @@ SEED = 4101
 NREADS = 6  # the simulator's reads; read 0 (the reset) is not in the file
 # pixels kept along each axis (of the simulator's 504 active ones): the
 # non-linear files are searched longest, and their effect is large
-SIDE = {"ipc": 128, "ipc_bf": 128, "ipc_nl": 64, "ipc_bf_nl": 64}
+SIDE = {"ipc": 128, "ipc_bf": 128, "ipc_nl": 48, "ipc_bf_nl": 48}
 _MADE = {}
 
 
