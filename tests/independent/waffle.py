@@ -249,6 +249,21 @@ def _reference_level(ramp):
     return ramp[:, border].mean(axis=1)
 
 
+def _cut_reads(one, kind, nreads, level, seed, side):
+    """One simulated ramp (written to ``one``, then removed) as the reads of
+    a ramp file: electrons, less the reference level, read 0 left out, the
+    central ``side`` x ``side`` pixels with their outer ``EDGE`` NaN."""
+    try:
+        ramp = _electrons(_read(simulate_ramp(one, kind, nreads, level, seed)))
+    finally:
+        if os.path.exists(one):
+            os.remove(one)
+    lo = (SIDE - side) // 2
+    reads = ramp[1:, lo:lo + side, lo:lo + side] - _reference_level(ramp)[1:, None, None]
+    reads[:, :EDGE] = reads[:, -EDGE:] = reads[:, :, :EDGE] = reads[:, :, -EDGE:] = np.nan
+    return reads
+
+
 def discover_ramp_file(path, kind, seed, nreads=6, level=40000.0, side=64, nramps=1):
     """Flat ramps of the simulator written as a discovery ramp file
     (``docs/discovery_format.md``, "Ramps"), by astropy from the format text.
@@ -295,7 +310,6 @@ def discover_ramp_file(path, kind, seed, nreads=6, level=40000.0, side=64, nramp
         raise ValueError(f"side must be even and in 2..{SIDE - 2 * REFPIX}, got {side}")
     path = os.fspath(path)
     rate = level / (nreads - 1) / DT  # e-/s: ILLUMINATION * QE of _config
-    lo = (SIDE - side) // 2
     readnoise = float(np.sqrt(READ_NOISE ** 2 + GAIN ** 2 / 12.0))
     primary = fits.PrimaryHDU()
     primary.header["READNOIS"] = (readnoise, "e-: the simulator's 10 e- and DN quantization")
@@ -304,14 +318,7 @@ def discover_ramp_file(path, kind, seed, nreads=6, level=40000.0, side=64, nramp
     primary.header["ORIGIN"] = "solid-waffle 26.0.0 flat simulator"
     hdus = [primary]
     for k in range(1, nramps + 1):
-        one = f"{path}.sim{k}.fits"
-        try:
-            ramp = _electrons(_read(simulate_ramp(one, kind, nreads, level, seed + k - 1)))
-        finally:
-            if os.path.exists(one):
-                os.remove(one)
-        reads = ramp[1:, lo:lo + side, lo:lo + side] - _reference_level(ramp)[1:, None, None]
-        reads[:, :EDGE] = reads[:, -EDGE:] = reads[:, :, :EDGE] = reads[:, :, -EDGE:] = np.nan
+        reads = _cut_reads(f"{path}.sim{k}.fits", kind, nreads, level, seed + k - 1, side)
         scene = fits.ImageHDU(np.full((side, side), rate), name="SCENE")
         scene.header["EXTVER"] = k
         scene.header["BUNIT"] = "electron/s"
