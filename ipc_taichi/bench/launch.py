@@ -15,6 +15,7 @@ import numpy as np
 from .. import __version__
 from ..calibrate.benchmark import measure_calibrate
 from ..datasets import star_field, uniform_frame
+from ..discover.benchmark import benchmark_ramps, ramps_section
 from ..gpus import cuda_present
 from ..reference import couple_reference
 from .cliramp import CLIRAMP_GROUPS, CLIRAMP_SIZE, measure_cliramp
@@ -54,8 +55,6 @@ def work(spec):
     if config == "bondmap":
         return measure_bondmap(size=spec["size"], repeats=spec["repeats"])
     if config == "discover-ramps":
-        from ..discover.benchmark import benchmark_ramps, ramps_section
-
         info = machine()
         return ramps_section(benchmark_ramps(), info["cpu"], info["cores"],
                              info["load_average_at_start"][0])
