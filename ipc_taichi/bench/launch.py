@@ -15,6 +15,7 @@ import numpy as np
 from .. import __version__
 from ..calibrate.benchmark import measure_calibrate
 from ..datasets import star_field, uniform_frame
+from ..discover.benchmark import benchmark_ramps, ramps_section
 from ..gpus import cuda_present
 from ..reference import couple_reference
 from .cliramp import CLIRAMP_GROUPS, CLIRAMP_SIZE, measure_cliramp
@@ -53,6 +54,10 @@ def work(spec):
         return measure_cliramp(size=spec["size"], groups=spec["groups"])
     if config == "bondmap":
         return measure_bondmap(size=spec["size"], repeats=spec["repeats"])
+    if config == "discover-ramps":
+        info = machine()
+        return ramps_section(benchmark_ramps(), info["cpu"], info["cores"],
+                             info["load_average_at_start"][0])
     if config == "calibrate":
         flats = {k: spec[k] for k in ("flat_size", "flat_ints", "flat_groups") if k in spec}
         return calibrate_section(measure_calibrate(spec.get("size", 2048),
@@ -171,7 +176,7 @@ def run_benchmark(sizes=SIZES, kinds=KINDS, repeats=5, configs=None, progress=pr
     _add_ratios(rows)
     results = {"machine": info, "repeats": repeats, "notes": notes, "rows": rows,
                "floor": floor_model(info), "pipeline": None, "ramp": None, "calibrate": None,
-               "cuda": None, "startup": None, "cliramp": None}
+               "cuda": None, "startup": None, "cliramp": None, "discover_ramps": None}
     if measure:
         results["floor"]["measured"] = _launch({"config": "floor"}, "The floor measurement",
                                                notes)
@@ -236,7 +241,8 @@ def _measure_sections(info, repeats, progress, notes, cuda_size, stack, pipeline
                       ramp_size, ramp_groups):
     """The sections after the floor, each in a subprocess of its own (the
     start-up row runs its own): ``{"pipeline", "ramp", "cuda", "calibrate",
-    "cliramp", "startup"}``, those run; a failed one None with a note in ``notes``."""
+    "cliramp", "discover_ramps", "startup"}``, those run; a failed one None with
+    a note in ``notes``."""
     found = {}
     if pipeline_size:
         if _has_module("jwst"):
@@ -261,6 +267,9 @@ def _measure_sections(info, repeats, progress, notes, cuda_size, stack, pipeline
     progress(f"  a {CLIRAMP_SIZE}x{CLIRAMP_SIZE} x {CLIRAMP_GROUPS} ramp FITS through the CLI")
     found["cliramp"] = _launch({"config": "cliramp", "size": CLIRAMP_SIZE,
                                 "groups": CLIRAMP_GROUPS}, "The CLI ramp row", notes)
+    progress("  discover on a 256x256 x 10-read ramp pair (issue 38)")
+    found["discover_ramps"] = _launch({"config": "discover-ramps"}, "The discover ramp row",
+                                      notes)
     progress("  a bond map against the uniform law, per iteration, 2048x2048")
     found["bondmap"] = _launch({"config": "bondmap", "size": 2048, "repeats": 7},
                                "The bond-map row", notes)

@@ -124,7 +124,8 @@ def render_markdown(results):
     for section in (render_pipeline(results.get("pipeline")), render_section(results.get("ramp")),
                     render_section(results.get("calibrate")),
                     render_section(results.get("bondmap")), render_cuda(results.get("cuda")),
-                    render_section(results.get("cliramp")), render_section(results.get("startup"))):
+                    render_section(results.get("cliramp")), render_section(results.get("startup")),
+                    render_section(results.get("discover_ramps"))):
         if section:
             lines += [section]
     return "\n".join(lines)

@@ -20,7 +20,9 @@ from .ramp_search import discover_ramps
 from .ramps import RampModel, RampPair, simulate_ramp, write_ramps
 from .search import discover
 
-__all__ = ["benchmark_oversampled", "benchmark_ramps"]
+__all__ = ["benchmark_oversampled", "benchmark_ramps", "ramps_section", "RAMPS_TARGET_S"]
+
+RAMPS_TARGET_S = 300.0  # issue 38: a 256x256 x 10-read ramp pair under 5 minutes on 2 cores
 
 
 def benchmark_oversampled(shape=(160, 160), pairs=3, oversample=5, sigma_px=0.2, seed=1):
@@ -54,7 +56,7 @@ def benchmark_ramps(n=256, nreads=10, tframe=2.0, fraction=0.03, tau_s=5.0, seed
     noise 10 e-) with a hidden ``persistence`` and search it
     (:func:`~.ramp_search.discover_ramps`).
 
-    Returns ``wall_s``, ``cpu_s``, ``peak_rss_mb``, ``named``, ``complete`` and
+    Returns ``wall_s``, ``cpu_s``, ``n``, ``nreads``, ``peak_rss_mb``, ``named``, ``complete`` and
     the fitted ``persistence`` parameters.
     """
     rng = np.random.default_rng(seed)
@@ -71,7 +73,32 @@ def benchmark_ramps(n=256, nreads=10, tframe=2.0, fraction=0.03, tau_s=5.0, seed
         wall, cpu = time.perf_counter(), time.process_time()
         report = discover_ramps(path)
         wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
-    return {"wall_s": wall, "cpu_s": cpu,
+    return {"wall_s": wall, "cpu_s": cpu, "n": n, "nreads": nreads,
             "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
             "named": report["missing_effects"], "complete": report["complete"],
             "persistence": report["final_model"]["effects"].get("persistence")}
+
+
+def ramps_section(result, cpu="unknown", cores=None, load=None):
+    """:func:`benchmark_ramps`'s ``result`` as a section of ``ipc-taichi bench``
+    (:func:`~ipc_taichi.bench.render.render_section`), with the machine it ran
+    on: ``cpu`` (the model name), ``cores`` and the 1-minute ``load`` average
+    at the start (a shared machine's wall time is mostly waiting)."""
+    p = result.get("persistence") or {}
+    found = (f"{p['fraction']:.4f} / {p['tau_s']:.2f} s" if p else "not named")
+    return {"title": "Discover on a ramp pair (issue 38 target: 256x256 x 10 reads under 5 "
+                     "minutes on 2 cores)",
+            "rows": [{"ramp": f"{result['n']}x{result['n']} x {result['nreads']} reads, "
+                              "persistence 0.03 / 5 s hidden",
+                      "wall [s]": result["wall_s"], "CPU [s]": result["cpu_s"],
+                      "peak RSS [MB]": result["peak_rss_mb"],
+                      "named": ", ".join(result["named"]) or "none",
+                      "persistence found": found,
+                      "complete": "yes" if result["complete"] else "no",
+                      "target [s]": RAMPS_TARGET_S,
+                      "met": "yes" if result["wall_s"] < RAMPS_TARGET_S else "no"}],
+            "notes": [f"{cpu}, {cores} cores, load average {load} at the start. "
+                      "ipc_taichi.discover.benchmark.benchmark_ramps: one pair simulated by the "
+                      "ramp model (constant IPC 0.0125, read noise 10 e-, 30 % of the pixels at "
+                      "400 e-/s, the rest at 20 e-/s, TFRAME 2 s), written, then "
+                      "discover_ramps timed (the file's writing not included)."]}

@@ -45,8 +45,8 @@ from astropy.io import fits
 from solid_waffle.flat_simulator.detector_functions import TestKernels
 from solid_waffle.flat_simulator.simulate_flat import Simulation
 
-__all__ = ["ALPHA", "BETA", "GAIN", "KINDS", "REFPIX", "bf_kernel", "dark_ramps",
-           "flat_ramps", "simulate_ramp"]
+__all__ = ["ALPHA", "BETA", "GAIN", "KINDS", "RAMP_KINDS", "REFPIX", "bf_kernel", "dark_ramps",
+           "discover_ramp_file", "flat_ramps", "simulate_ramp"]
 
 FORMAT = 1001  # solid-waffle's smallest array: 512 x 512
 SIDE = 512
@@ -59,6 +59,7 @@ RESET = 100.0  # e-: reset level in every read
 SUBSTEPS = 2  # Poisson steps per read (brighter-fatter updates)
 DT = 3.0  # s per read
 QE = 1.0
+EDGE = 2  # px: a discover file's cut masks this border of MEASURED (the 5x5 kernel's reach)
 
 KINDS = {
     "ipc": {"bfe": False, "nl": False},
@@ -66,6 +67,10 @@ KINDS = {
     "ipc_bf_nl": {"bfe": True, "nl": True},
 }
 """The three sets: constant IPC; plus brighter-fatter; plus quadratic non-linearity."""
+
+RAMP_KINDS = {**KINDS, "ipc_nl": {"bfe": False, "nl": True}}
+"""Every set :func:`simulate_ramp` makes: :data:`KINDS` (calibrate's) and the
+quadratic non-linearity without brighter-fatter (discover's ramp files)."""
 
 SEEDS = {"ipc": 101, "ipc_bf": 201, "ipc_bf_nl": 301}
 """Default first ``RNGSEED`` of each set (ramp ``i`` uses ``seed + i``)."""
@@ -90,7 +95,7 @@ def bf_kernel():
 
 def _config(kind, output, nreads, level, seed, dark=False):
     """The simulator's configuration text for one ramp."""
-    effects = KINDS[kind]
+    effects = RAMP_KINDS[kind]
     per_read = 0.0 if dark else level / (nreads - 1)  # e- collected per read
     lines = [
         f"FORMAT: {FORMAT}",
@@ -120,7 +125,7 @@ def simulate_ramp(output, kind, nreads=20, level=42000.0, seed=1, dark=False):
     Parameters
     ----------
     output : str or path-like
-    kind : {"ipc", "ipc_bf", "ipc_bf_nl"}
+    kind : {"ipc", "ipc_bf", "ipc_bf_nl", "ipc_nl"}
     nreads : int
         Reads, read 0 included (it holds no charge).
     level : float
@@ -227,3 +232,108 @@ def dark_ramps(folder, kind, nramps=8, nreads=20, seed=None):
     return [simulate_ramp(os.path.join(folder, f"waffle_{kind}_dark{i + 1:03d}.fits"), kind,
                           nreads, 0.0, seed + i, dark=True)
             for i in range(nramps)]
+
+
+def _electrons(dn):
+    """DN to electrons. The simulator's ``uint16`` conversion truncates, so a
+    value ``v`` DN stands for ``[v, v + 1)`` DN: its mean ``(v + 0.5) GAIN``."""
+    return (np.asarray(dn, dtype=np.float64) + 0.5) * GAIN
+
+
+def _reference_level(ramp):
+    """Each read's mean over the 4-pixel reference border, e- (``(nreads,)``):
+    the reset level as a lab reads it (the border holds no charge, IPC or
+    non-linearity)."""
+    border = np.ones(ramp.shape[1:], dtype=bool)
+    border[REFPIX:-REFPIX, REFPIX:-REFPIX] = False
+    return ramp[:, border].mean(axis=1)
+
+
+def _cut_reads(one, kind, nreads, level, seed, side):
+    """One simulated ramp (written to ``one``, then removed) as the reads of
+    a ramp file: electrons, less the reference level, read 0 left out, the
+    central ``side`` x ``side`` pixels with their outer ``EDGE`` NaN."""
+    try:
+        ramp = _electrons(_read(simulate_ramp(one, kind, nreads, level, seed)))
+    finally:
+        if os.path.exists(one):
+            os.remove(one)
+    lo = (SIDE - side) // 2
+    reads = ramp[1:, lo:lo + side, lo:lo + side] - _reference_level(ramp)[1:, None, None]
+    reads[:, :EDGE] = reads[:, -EDGE:] = reads[:, :, :EDGE] = reads[:, :, -EDGE:] = np.nan
+    return reads
+
+
+def discover_ramp_file(path, kind, seed, nreads=6, level=40000.0, side=64, nramps=1):
+    """Flat ramps of the simulator written as a discovery ramp file
+    (``docs/discovery_format.md``, "Ramps"), by astropy from the format text.
+
+    Per ramp: the simulator's DN to electrons (:func:`_electrons`), each read
+    less its reference border's mean (:func:`_reference_level`); read 0 (the
+    reset, no charge, at t = 0) is left out, so MEASURED holds reads 1 ...
+    ``nreads - 1`` at ``TFIRST = TFRAME = DT``; only the central ``side`` x
+    ``side`` pixels of the active area are kept (the reference border is
+    not in the file), and MEASURED's outer ``EDGE`` pixels are NaN: the
+    flat goes on beyond the cut, which a model of the file alone cannot know
+    (it would couple those pixels to nothing outside). SCENE is the flat's
+    rate ``ILLUMINATION * QE``, e-/s.
+    The header states what the simulator was told: ``IPCLAW`` its constant
+    1 %, ``READNOIS`` its 10 e- with the DN quantization's ``GAIN^2 / 12``.
+
+    Parameters
+    ----------
+    path : str or path-like
+        The ramp file (written to ``path + ".tmp"`` and renamed).
+    kind : {"ipc", "ipc_bf", "ipc_nl", "ipc_bf_nl"}
+        :data:`RAMP_KINDS`.
+    seed : int
+        ``RNGSEED`` of the first ramp (ramp ``i`` uses ``seed + i``).
+    nreads : int
+        The simulator's reads, read 0 included (the file holds ``nreads - 1``).
+    level : float
+        Mean collected charge at the last read, e-.
+    side : int
+        Pixels kept along each axis (even, at most ``SIDE - 2 REFPIX``).
+    nramps : int
+        Integrations (ramp pairs of the file).
+
+    Returns
+    -------
+    dict
+        ``path``, ``rate`` (e-/s), ``truth``: ``alpha``, ``bf_kernel`` (or
+        None), ``beta`` (1/e-), ``deficit_at_50ke`` (``beta`` x 50 ke-),
+        ``read_noise`` (e-).
+    """
+    if kind not in RAMP_KINDS:
+        raise ValueError(f"kind must be one of {', '.join(RAMP_KINDS)}, got {kind!r}")
+    if side % 2 or not 0 < side <= SIDE - 2 * REFPIX:
+        raise ValueError(f"side must be even and in 2..{SIDE - 2 * REFPIX}, got {side}")
+    path = os.fspath(path)
+    rate = level / (nreads - 1) / DT  # e-/s: ILLUMINATION * QE of _config
+    readnoise = float(np.sqrt(READ_NOISE ** 2 + GAIN ** 2 / 12.0))
+    primary = fits.PrimaryHDU()
+    primary.header["READNOIS"] = (readnoise, "e-: the simulator's 10 e- and DN quantization")
+    primary.header["SHOTNOIS"] = True
+    primary.header["IPCLAW"] = (f"constant:{ALPHA}", "the simulator's L_IPC")
+    primary.header["ORIGIN"] = "solid-waffle 26.0.0 flat simulator"
+    hdus = [primary]
+    for k in range(1, nramps + 1):
+        reads = _cut_reads(f"{path}.sim{k}.fits", kind, nreads, level, seed + k - 1, side)
+        scene = fits.ImageHDU(np.full((side, side), rate), name="SCENE")
+        scene.header["EXTVER"] = k
+        scene.header["BUNIT"] = "electron/s"
+        measured = fits.ImageHDU(reads, name="MEASURED")
+        measured.header["EXTVER"] = k
+        measured.header["TFRAME"] = (DT, "s")
+        measured.header["TFIRST"] = (DT, "s: read 1 of the simulator")
+        measured.header["BUNIT"] = "electron"
+        hdus += [scene, measured]
+    tmp = path + ".tmp"
+    fits.HDUList(hdus).writeto(tmp, overwrite=True)
+    os.replace(tmp, path)
+    effects = RAMP_KINDS[kind]
+    beta = BETA if effects["nl"] else 0.0
+    return {"path": path, "rate": rate,
+            "truth": {"alpha": ALPHA, "beta": beta, "deficit_at_50ke": beta * 5.0e4,
+                      "bf_kernel": bf_kernel().tolist() if effects["bfe"] else None,
+                      "read_noise": READ_NOISE}}
