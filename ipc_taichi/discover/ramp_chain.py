@@ -31,9 +31,10 @@ rest of the model fixed; evidence ``delta chi^2 - k ln n``. Its gates are the
 frame vocabulary's (:func:`~.effects.contradiction`,
 :func:`~.effects.implausible`, the signature, :func:`signature_refusal`) and,
 for the two that move charge between neighbours, :func:`rival_contradiction`:
-both are fitted to the same increments, and the one whose time structure fits worse by more than the
-evidence threshold is not the effect; when neither is ahead by that much the
-ramps do not tell them apart and neither is named.
+both are fitted to the same increments, and the one whose time structure
+fits worse by more than the evidence threshold is not the effect; when
+neither is ahead by that much the ramps do not tell them apart and neither
+is named.
 """
 
 import math
