@@ -1,7 +1,8 @@
 """The frame effects that ramps tell apart by their time structure:
 ``brighter_fatter``, ``signal_dependent_ipc``, ``classical_nonlinearity`` and
-the IPC geometry terms fitted to a ramp file's increments, read by read (``docs/discover.md``,
-"Ramps"; the forms are the frame vocabulary's, :mod:`.effects`).
+the IPC geometry terms fitted to a ramp file's increments, read by read
+(``docs/discover.md``, "Ramps"; the forms are the frame vocabulary's,
+:mod:`.effects`).
 
 The physical forms, evaluated at every read ``i`` (:func:`~.ramps.expected_mean`)
 ---------------------------------------------------------------------------
