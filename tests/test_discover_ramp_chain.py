@@ -135,3 +135,25 @@ def test_a_rescaled_coupling_is_not_anisotropy_on_ramps():
     assert "rescaled coupling" in signature_refusal("anisotropic_ipc", _fit(1.2, 1.19, 0.01))
     assert signature_refusal("anisotropic_ipc", _fit(1.24, 0.76, 0.01)) is None
     assert signature_refusal("diagonal_ipc", _fit(1.0, 1.0, 0.01)) is None  # no signature
+
+
+def test_second_neighbour_coupling_named_on_a_ramp(tmp_path):
+    # a ramp of the ramp model itself (no independent generator here has a
+    # second-neighbour term; Pyxel's kernel is 3x3): 0.004 two pixels away on
+    # the stated constant 0.0125, patches and hot pixels, 32x32 x 6 reads
+    from ipc_taichi.discover.ramps import RampPair, simulate_ramp, write_ramps
+
+    rate = np.full((32, 32), 30.0)
+    rate[4:12, 4:12] = 800.0
+    rate[18:22, 20:30] = 1500.0
+    rate[26, 6] = rate[8, 24] = rate[14, 14] = rate[28, 28] = 2500.0
+    model = RampModel(DetectorModel("constant:0.0125", 10.0, effects={
+        "second_neighbor_ipc": {"alpha_second": 0.004}}))
+    pair = RampPair(1, rate, np.zeros((6, 32, 32)), 3.0 * np.arange(1, 7))
+    reads = simulate_ramp(model, pair, np.random.default_rng(9))
+    path = write_ramps(str(tmp_path / "second.fits"), [(rate, reads, 3.0)], 10.0,
+                       law="constant:0.0125")
+    report = discover_ramps(path)
+    assert report["missing_effects"] == ["second_neighbor_ipc"]
+    _closed(report)
+    assert report["steps"][0]["params"]["alpha_second"] == pytest.approx(0.004, abs=0.0004)
