@@ -4,10 +4,10 @@ Pyxel's CMOS pipeline with non-destructive reads, one Pyxel effect at a time,
 and writes the discovery ramp format itself. What is asserted is what was
 measured (docs/discover.md, "Ramps made by Pyxel"): the nulls name nothing;
 Pyxel's output-node non-linearity and its correlated pink noise are named by
-the vocabulary's names; Pyxel effects the ramp search has no name for (its trap
-persistence, dark current, a diagonal or anisotropic kernel) are not named
-under their own name, and the two without any candidate leave the verdict
-incomplete with words in ``unexplained``."""
+the vocabulary's names, and so are its dark current and the diagonal and
+anisotropic terms of its IPC kernel; its trap persistence (capture during the
+exposure, which no form here has) is not named ``persistence`` on a bright ramp
+and leaves the verdict incomplete with words in ``unexplained``."""
 
 import warnings
 
@@ -40,7 +40,8 @@ def _floor_excess(report):
 @pytest.mark.parametrize("effect", ["null", "ipc_null"])
 def test_pyxel_null_ramps_name_nothing(tmp_path, effect):
     """Pyxel's plain CMOS ramp, and the same with its simple_ipc kernel
-    (0.0125, the file's IPCLAW constant:0.0125): complete, nothing named."""
+    (0.0125, the file's IPCLAW constant:0.0125; the outer ring left out):
+    complete, nothing named (no geometry term on the kernel without one)."""
     report = _discover(tmp_path, effect)
     assert report["complete"], report["unexplained"]
     assert report["steps"] == [] and report["missing_effects"] == []
@@ -97,27 +98,35 @@ def test_pyxel_after_image_on_a_dark_ramp_is_persistence_but_incomplete(tmp_path
     assert not report["complete"] and report["unexplained"]
 
 
-def test_pyxel_dark_current_is_outside_the_ramp_vocabulary(tmp_path):
-    """simple_dark_current 20 e-/s: the ramp search has no dark current; every
-    candidate refused, incomplete, and the words say every read is off."""
+def test_pyxel_dark_current_is_dark_current(tmp_path):
+    """simple_dark_current 20 e-/s (not in SCENE, the light's rate): named
+    dark_current at its rate (measured 19.83 / 20.00 / 20.01 at seeds 1-3),
+    nothing else, complete."""
     report = _discover(tmp_path, "dark_current")
-    assert report["steps"] == [] and not report["complete"]
-    assert report["final_gap"] > 5
-    assert any("off the model at reads 0, 1, 2, 3, 4, 5" in line
-               for line in report["unexplained"])
+    assert _floor_excess(report) > 100
+    assert report["missing_effects"] == ["dark_current"] and report["complete"]
+    assert report["steps"][0]["params"]["dark_rate_e_per_s"] == pytest.approx(20.0, abs=0.6)
 
 
-@pytest.mark.parametrize("effect", ["diagonal_ipc", "anisotropic_ipc"])
-def test_pyxel_kernel_geometry_is_not_named_on_ramps(tmp_path, effect):
-    """simple_ipc with a diagonal (0.002) or anisotropic (0.003) term on the
-    stated constant 0.0125: the geometry terms are not searched on ramps, so
-    neither is named by its own name although the ramps show it. (Measured:
-    the diagonal kernel is absorbed by signal_dependent_ipc; when the ramp
-    search learns the geometry terms this test and the docs table change.)"""
-    report = _discover(tmp_path, effect)
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_pyxel_diagonal_kernel_is_diagonal_ipc(tmp_path, seed):
+    """simple_ipc with a diagonal term 0.002 on the stated constant 0.0125 (the
+    outer ring left out: Pyxel's fill edge): named diagonal_ipc at its value
+    and nothing else, complete, at every seed (it was signal_dependent_ipc
+    before the geometry terms were searched on ramps)."""
+    report = _discover(tmp_path, "diagonal_ipc", seed)
     assert _floor_excess(report) > 3
-    assert effect not in report["missing_effects"]
-    if effect == "diagonal_ipc":
-        assert report["missing_effects"] == ["signal_dependent_ipc"]
-    else:
-        assert not report["complete"] and report["unexplained"]
+    assert report["missing_effects"] == ["diagonal_ipc"] and report["complete"]
+    assert report["steps"][0]["params"]["alpha_diag"] == pytest.approx(0.002, abs=0.0002)
+    assert report["steps"][0]["explained_fraction"] > 0.7
+
+
+def test_pyxel_anisotropic_kernel_is_anisotropic_ipc(tmp_path):
+    """simple_ipc with anisotropic_coupling 0.003 (0.0155 along rows, 0.0095
+    along columns): anisotropic_ipc at weights 1.24 and 0.76 of the stated
+    0.0125, nothing else, complete."""
+    report = _discover(tmp_path, "anisotropic_ipc")
+    assert report["missing_effects"] == ["anisotropic_ipc"] and report["complete"]
+    p = report["steps"][0]["params"]
+    assert p["weight_horizontal"] == pytest.approx(1.24, abs=0.03)
+    assert p["weight_vertical"] == pytest.approx(0.76, abs=0.03)

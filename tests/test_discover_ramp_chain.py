@@ -5,15 +5,25 @@ pair's mean charge, an exponential saturation of the read value), each
 hidden effect is named alone, at its truth, and closes the gap to its floor;
 brighter-fatter is never named signal-dependent IPC nor the reverse (a
 coupling outside the paper's family, which fits both alike, names neither),
-and a null ramp names nothing. 48x48 pixels x 6 reads of 3 s (45-80 ke- at the
-last read of the patches and hot pixels)."""
+and a null ramp names nothing; the IPC geometry terms, searched on ramps too,
+are not named where the coupling is only stronger or signal-dependent (their
+own named cases: Pyxel's kernels, ``tests/test_discover_pyxel_ramps.py``).
+48x48 pixels x 6 reads of 3 s (45-80 ke- at the last read of the patches and
+hot pixels)."""
 
 import math
 
+import numpy as np
 import pytest
 
+from ipc_taichi.discover.fitting import FitResult
 from ipc_taichi.discover.model import DetectorModel
-from ipc_taichi.discover.ramp_chain import RIVALS, offered, rival_contradiction
+from ipc_taichi.discover.ramp_chain import (
+    RIVALS,
+    offered,
+    rival_contradiction,
+    signature_refusal,
+)
 from ipc_taichi.discover.ramp_search import discover_ramps
 from ipc_taichi.discover.ramps import RampModel
 from tests.independent import ramplab
@@ -57,6 +67,8 @@ def test_signal_dependent_ipc_named_not_brighter_fatter(tmp_path):
     assert report["missing_effects"] == ["signal_dependent_ipc"]
     _closed(report)
     assert "brighter_fatter" not in report["missing_effects"]
+    # a coupling that grows with the charge is, to an anisotropy fit, a stronger one
+    assert "rescaled coupling" in report["not_named"]["anisotropic_ipc"]
     law = DetectorModel("constant:0.0125", 10.0, effects={
         "signal_dependent_ipc": report["steps"][0]["params"]}).ipc_law()
     for s in (20000.0, 40000.0):
@@ -94,11 +106,54 @@ def test_rivals_judged_against_each_other():
     assert rival_contradiction("classical_nonlinearity", ev, 25.0) is None
 
 
-def test_signal_dependent_ipc_offered_on_a_constant_law_only():
+def test_offered_by_the_records_on_the_current_law():
+    # signal-dependent IPC on a constant law only; the geometry terms wherever
+    # the law has a nearest coupling to weight (a zero law has none: no
+    # geometry term is offered, and nothing divides by its alpha(0, 0))
+    geometry = ["diagonal_ipc", "anisotropic_ipc", "second_neighbor_ipc"]
     constant = RampModel(DetectorModel("constant:0.0125", 10.0))
     assert offered(constant) == ["brighter_fatter", "signal_dependent_ipc",
-                                 "classical_nonlinearity"]
+                                 "classical_nonlinearity"] + geometry
     paper = RampModel(DetectorModel("donlon2018", 10.0,
                                     effects={"classical_nonlinearity": {
                                         "deficit_at_50ke": 0.02, "cubic_term": 0.0}}))
-    assert offered(paper) == ["brighter_fatter"]
+    assert offered(paper) == ["brighter_fatter"] + geometry
+    zero = RampModel(DetectorModel("constant:0", 10.0))
+    assert offered(zero) == ["brighter_fatter", "signal_dependent_ipc",
+                             "classical_nonlinearity"]
+
+
+def _fit(h, v, sigma):
+    keys = [("anisotropic_ipc", "weight_horizontal"), ("anisotropic_ipc", "weight_vertical")]
+    return FitResult(None, 100.0, dict(zip(keys, (h, v))), dict(zip(keys, (sigma, sigma))),
+                     np.diag([sigma ** 2, sigma ** 2]), keys)
+
+
+def test_a_rescaled_coupling_is_not_anisotropy_on_ramps():
+    # the frames' signature test: weights equal within their errors are a
+    # stronger (or weaker) coupling, not a difference between rows and columns
+    assert "rescaled coupling" in signature_refusal("anisotropic_ipc", _fit(1.2, 1.19, 0.01))
+    assert signature_refusal("anisotropic_ipc", _fit(1.24, 0.76, 0.01)) is None
+    assert signature_refusal("diagonal_ipc", _fit(1.0, 1.0, 0.01)) is None  # no signature
+
+
+def test_second_neighbour_coupling_named_on_a_ramp(tmp_path):
+    # a ramp of the ramp model itself (no independent generator here has a
+    # second-neighbour term; Pyxel's kernel is 3x3): 0.004 two pixels away on
+    # the stated constant 0.0125, patches and hot pixels, 32x32 x 6 reads
+    from ipc_taichi.discover.ramps import RampPair, simulate_ramp, write_ramps
+
+    rate = np.full((32, 32), 30.0)
+    rate[4:12, 4:12] = 800.0
+    rate[18:22, 20:30] = 1500.0
+    rate[26, 6] = rate[8, 24] = rate[14, 14] = rate[28, 28] = 2500.0
+    model = RampModel(DetectorModel("constant:0.0125", 10.0, effects={
+        "second_neighbor_ipc": {"alpha_second": 0.004}}))
+    pair = RampPair(1, rate, np.zeros((6, 32, 32)), 3.0 * np.arange(1, 7))
+    reads = simulate_ramp(model, pair, np.random.default_rng(9))
+    path = write_ramps(str(tmp_path / "second.fits"), [(rate, reads, 3.0)], 10.0,
+                       law="constant:0.0125")
+    report = discover_ramps(path)
+    assert report["missing_effects"] == ["second_neighbor_ipc"]
+    _closed(report)
+    assert report["steps"][0]["params"]["alpha_second"] == pytest.approx(0.004, abs=0.0004)

@@ -192,6 +192,12 @@ def test_ramp_effect_contradictions_and_limits():
                                           10.0, 16.0)
     assert ramp_implausible("random_telegraph_noise", {"fraction": 0.2, "jump_e": 50.0},
                             10.0, 16.0)
+    assert "negative rate" in ramp_contradiction("dark_current", {"dark_rate_e_per_s": -1.0})
+    assert "depends on the light" in ramp_contradiction("dark_current",
+                                                        {"dark_rate_e_per_s": 2.0}, 6.0)
+    assert ramp_contradiction("dark_current", {"dark_rate_e_per_s": 2.0}, -1.0) is None
+    assert "e-/s in every pixel" in ramp_implausible("dark_current",
+                                                     {"dark_rate_e_per_s": 5e3}, 10.0, 16.0)
 
 
 class _ToyRampRecord(RampEffect):
@@ -217,7 +223,7 @@ def test_a_ramp_record_is_all_the_search_needs(tmp_path, monkeypatch):
     report = discover_ramps(path)
     assert report["not_named"]["toy_ramp"] == f"readnoise 10, duration {duration:g}"
     assert "toy_ramp" not in report["missing_effects"]
-    assert RAMP_LIMITS == {"persistence": 0.05, "persistence_tau": 20.0,
+    assert RAMP_LIMITS == {"persistence": 0.05, "persistence_tau": 20.0, "dark_current": 1000.0,
                            "correlated_read_noise": 3.0, "random_telegraph_noise": 0.05}
 
 
@@ -268,3 +274,35 @@ def test_brighter_fatter_ramp_is_named_brighter_fatter(tmp_path):
     assert p["deflection_x_at_50ke"] == pytest.approx(0.04, rel=0.1)
     assert p["deflection_y_at_50ke"] == pytest.approx(0.05, rel=0.1)
     assert p["reach"] == pytest.approx(0.0, abs=0.05)
+
+
+def _dark_file(tmp_path, name, scale=1.0, dark=0.0):
+    """A ramp of the ramp model itself (32x32 x 6 reads of 3 s, background 30
+    e-/s and two patches) whose light is ``scale`` x SCENE plus ``dark`` e-/s
+    in every pixel."""
+    from ipc_taichi.discover.model import DetectorModel
+    from ipc_taichi.discover.ramps import RampModel, RampPair
+
+    rate = np.full((32, 32), 30.0)
+    rate[4:12, 4:12] = 800.0
+    rate[18:22, 20:30] = 1500.0
+    model = RampModel(DetectorModel("constant:0.0125", 10.0))
+    pair = RampPair(1, rate * scale + dark, np.zeros((6, 32, 32)), 3.0 * np.arange(1, 7))
+    reads = simulate_ramp(model, pair, np.random.default_rng(5))
+    return write_ramps(str(tmp_path / f"{name}.fits"), [(rate, reads, 3.0)], 10.0,
+                       law="constant:0.0125")
+
+
+def test_dark_current_named_at_its_rate(tmp_path):
+    # 1.5 e-/s in every pixel that SCENE (the light) does not hold
+    report = discover_ramps(_dark_file(tmp_path, "dark", dark=1.5))
+    assert report["missing_effects"] == ["dark_current"] and report["complete"] is True
+    assert report["steps"][0]["params"]["dark_rate_e_per_s"] == pytest.approx(1.5, abs=0.15)
+
+
+def test_a_scene_scale_error_is_not_dark_current(tmp_path):
+    # 3 % more light than SCENE says: an excess rate, but one that grows with the light
+    report = discover_ramps(_dark_file(tmp_path, "scale", scale=1.03))
+    assert "dark_current" not in report["missing_effects"]
+    assert "depends on the light" in report["not_named"]["dark_current"]
+    assert report["complete"] is False

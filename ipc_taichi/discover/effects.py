@@ -100,7 +100,16 @@ class Misregistration(Effect):
         return {"shift_y_px": 0.0, "shift_x_px": float(value)}
 
 
-class CouplingTerm(Effect):
+class GeometryTerm(Effect):
+    """A coupling geometry term: weights on the law's nearest coupling
+    ``alpha(0, 0)``, so offered only where the law has one (``alpha(0, 0) >
+    0``; a zero law has no coupling to weight)."""
+
+    def offered(self, law):
+        return float(law.alpha(0.0, 0.0)) > 0.0
+
+
+class CouplingTerm(GeometryTerm):
     """``alpha_diag`` (``diagonal_ipc``), ``alpha_second`` (``second_neighbor_ipc``):
     the coupling fraction per neighbour at zero signal (a geometry weight
     ``alpha / alpha(0, 0)`` on the law); the one value is that coupling."""
@@ -116,7 +125,7 @@ class CouplingTerm(Effect):
         return {self.params[0].name: float(value)}
 
 
-class AnisotropicIPC(Effect):
+class AnisotropicIPC(GeometryTerm):
     """``weight_horizontal``, ``weight_vertical``: multipliers of alpha along a
     row and along a column; reported with ``anisotropy = (h - v)/((h + v)/2)``
     (the one value: ``h = 1 + a/2``, ``v = 1 - a/2``)."""

@@ -1,7 +1,8 @@
 """The frame effects that ramps tell apart by their time structure:
-``brighter_fatter``, ``signal_dependent_ipc`` and ``classical_nonlinearity``
-fitted to a ramp file's increments, read by read (``docs/discover.md``,
-"Ramps"; the forms are the frame vocabulary's, :mod:`.effects`).
+``brighter_fatter``, ``signal_dependent_ipc``, ``classical_nonlinearity`` and
+the IPC geometry terms fitted to a ramp file's increments, read by read
+(``docs/discover.md``, "Ramps"; the forms are the frame vocabulary's,
+:mod:`.effects`).
 
 The physical forms, evaluated at every read ``i`` (:func:`~.ramps.expected_mean`)
 ---------------------------------------------------------------------------
@@ -17,6 +18,10 @@ The physical forms, evaluated at every read ``i`` (:func:`~.ramps.expected_mean`
 - ``classical_nonlinearity`` acts on each pixel's read value after the
   coupling (:func:`~.effects.nonlinearity`): its own increments shrink as its
   level grows, and nothing moves to its neighbours.
+- ``diagonal_ipc``, ``anisotropic_ipc``, ``second_neighbor_ipc`` act at
+  readout like the law: the frame records' weights on the nearest coupling
+  applied to the charge present at read ``i`` (so offered only where the
+  current law has a nearest coupling, ``alpha(0, 0) > 0``).
 
 Fit (:func:`fit_frame_effect`)
 ------------------------------
@@ -25,25 +30,34 @@ vocabulary's starting values) by least squares of the increments whitened
 by the current model's covariance (:func:`~.ramps.increment_factors`), the
 rest of the model fixed; evidence ``delta chi^2 - k ln n``. Its gates are the
 frame vocabulary's (:func:`~.effects.contradiction`,
-:func:`~.effects.implausible`) and, for the two that move charge between
-neighbours, :func:`rival_contradiction`: both are fitted to the same
-increments, and the one whose time structure fits worse by more than the
-evidence threshold is not the effect; when neither is ahead by that much the
-ramps do not tell them apart and neither is named.
+:func:`~.effects.implausible`, the signature, :func:`signature_refusal`) and,
+for the two that move charge between neighbours, :func:`rival_contradiction`:
+both are fitted to the same increments, and the one whose time structure
+fits worse by more than the evidence threshold is not the effect; when
+neither is ahead by that much the ramps do not tell them apart and neither
+is named.
 """
+
+import math
 
 import numpy as np
 from scipy.optimize import least_squares
 
 from ..errors import GeometryError, LawError
 from .effects import EFFECTS
+from .fitting import FitResult
+from .gates import SIGNATURE_Z2, signature
 from .ramps import RampModel, expected_mean, expected_reads, increment_factors, whiten
 
-__all__ = ["FITTED", "RIVALS", "offered", "fit_frame_effect", "rival_contradiction"]
+__all__ = ["FITTED", "RIVALS", "offered", "fit_frame_effect", "rival_contradiction",
+           "signature_refusal"]
 
 FITTED = {"brighter_fatter": ("deflection_x_at_50ke", "deflection_y_at_50ke", "reach"),
           "signal_dependent_ipc": ("amp_diff", "amp_level", "alpha_floor"),
-          "classical_nonlinearity": ("deficit_at_50ke",)}
+          "classical_nonlinearity": ("deficit_at_50ke",),
+          "diagonal_ipc": ("alpha_diag",),
+          "anisotropic_ipc": ("weight_horizontal", "weight_vertical"),
+          "second_neighbor_ipc": ("alpha_second",)}
 """The parameters fitted on ramps, per effect (the others stay at the frame
 vocabulary's starting values: brighter-fatter's boundary-shift picture, no
 cubic term)."""
@@ -55,11 +69,13 @@ _FAILED = 1e3  # whitened residual for parameters the engine rejects (a negative
 def offered(model):
     """The frame effects a ramp search may add to ``model`` (a
     :class:`~.ramps.RampModel`): those not in it that their records offer on
-    its law (:meth:`~.record.Effect.offered`: ``signal_dependent_ipc`` only on
-    a constant starting law, as for frames)."""
+    its current law (:meth:`~.record.Effect.offered`: ``signal_dependent_ipc``
+    only on a constant law, the geometry terms only on a law with a nearest
+    coupling ``alpha(0, 0) > 0``, as for frames)."""
     frame = model.frame
+    law = frame.ipc_law()
     return [name for name in FITTED
-            if name not in frame.effects and EFFECTS[name].offered(frame.law)]
+            if name not in frame.effects and EFFECTS[name].offered(law)]
 
 
 def _parts(model, ramps):
@@ -75,8 +91,10 @@ def _parts(model, ramps):
 
 
 def fit_frame_effect(name, model, ramps, ln_n, max_nfev=40):
-    """``(params, evidence, new model, delta chi^2)`` of frame effect ``name``
-    added to ``model`` and fitted to ``ramps`` (module docstring)."""
+    """``(params, evidence, new model, fit)`` of frame effect ``name`` added
+    to ``model`` and fitted to ``ramps`` (module docstring); ``fit`` a
+    :class:`~.fitting.FitResult` (``chi2`` the delta chi^2, ``cov`` from the
+    whitened residuals' Jacobian) for :func:`signature_refusal`."""
     start = model.frame.starting_params(name)
     keys = FITTED[name]
     specs = {p.name: p for p in EFFECTS[name].params}
@@ -103,13 +121,33 @@ def fit_frame_effect(name, model, ramps, ln_n, max_nfev=40):
             return np.full(size, _FAILED)
 
     before = float(np.sum(residual(np.zeros(len(keys))) ** 2))
-    fit = least_squares(residual, np.zeros(len(keys)), bounds=((lower - x0) / scale,
-                                                                (upper - x0) / scale),
+    lo, hi = (lower - x0) / scale, (upper - x0) / scale
+    # an "off" value on a bound (a geometry term's 0) starts one scale inside:
+    # from the bound itself the trust region's first step is 1e-10 and it stops
+    fit = least_squares(residual, np.clip(0.0, lo + 1.0, hi - 1.0), bounds=(lo, hi),
                         diff_step=1e-3, max_nfev=max_nfev, x_scale=1.0)
     x = x0 + fit.x * scale
     gain = before - 2.0 * float(fit.cost)
     best = newer(x)
-    return best.frame.effects[name], gain - len(keys) * ln_n, best, gain
+    cov = scale[:, None] * np.linalg.pinv(fit.jac.T @ fit.jac) * scale[None, :]
+    fkeys = [(name, key) for key in keys]
+    result = FitResult(best.frame, gain, dict(zip(fkeys, map(float, x))),
+                       dict(zip(fkeys, np.sqrt(np.clip(np.diag(cov), 0.0, None)))), cov, fkeys,
+                       int(fit.nfev))
+    return best.frame.effects[name], gain - len(keys) * ln_n, best, result
+
+
+def signature_refusal(name, fit):
+    """Why the ramp fit ``fit`` of frame effect ``name`` is not that effect,
+    or ``None``: its own signature under 5 sigma (:func:`~.gates.signature`,
+    the frames' test: a rescaled coupling, ``weight_horizontal =
+    weight_vertical``, is not anisotropy, nor a constant law with a new floor
+    signal dependence)."""
+    z2 = signature(name, fit)
+    if z2 > SIGNATURE_Z2:
+        return None
+    return (f"its own signature is {math.sqrt(max(z2, 0.0)):.1f} sigma (needs "
+            f"{math.sqrt(SIGNATURE_Z2):g}): what it fits is a rescaled coupling")
 
 
 def rival_contradiction(name, evidence, threshold):

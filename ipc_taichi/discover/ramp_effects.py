@@ -20,6 +20,18 @@ its contradiction and its physical range (``docs/discovery_format.md``,
     releases a few tenths of a per cent up to a few per cent of the earlier
     charge) or with ``tau`` above 20 times the integration (a constant rate:
     dark current, not a decay).
+``dark_current``
+    ``dark_rate_e_per_s``: charge generated in every pixel alike at this rate
+    (e-/s), collected like light (coupled, shot-noisy): by read ``i`` it has
+    added ``dark_rate_e_per_s t_i`` electrons (:func:`~.ramps.dark_charge`).
+    On ramps it is a rate, not the frames' one charge per frame
+    (:class:`~.effects.DarkCurrent`, ``dark_e``): what SCENE, the light's
+    rate, does not hold. Where SCENE is measured from the ramps themselves
+    (``ipc-taichi ramp-file``) it holds the dark current already and the fit
+    finds none. Contradicted by a rate ``<= 0``, or when the pixels above the
+    median SCENE and those at or under it give rates more than 5 sigma apart
+    (an excess that grows with the light: a SCENE scale or gain error);
+    outside the physical range above 1000 e-/s.
 ``correlated_read_noise``
     ``row_variance_e2``, ``column_variance_e2``: at each read an offset
     shared by every pixel of a row (a column), Gaussian of this variance
@@ -47,6 +59,7 @@ from scipy.optimize import minimize_scalar
 from .ramps import (
     RAMP_UNEXPLAINED_Z,
     RampModel,
+    dark_charge,
     earlier_charge,
     expected_reads,
     increment_factors,
@@ -55,9 +68,9 @@ from .ramps import (
 )
 from .record import Effect, Param
 
-__all__ = ["RampEffect", "Persistence", "CorrelatedReadNoise", "RandomTelegraphNoise",
-           "RAMP_EFFECTS", "ramp_contradiction", "ramp_implausible", "RAMP_LIMITS",
-           "DARK_SHARE", "released", "earlier_charge"]
+__all__ = ["RampEffect", "Persistence", "DarkCurrent", "CorrelatedReadNoise",
+           "RandomTelegraphNoise", "RAMP_EFFECTS", "ramp_contradiction", "ramp_implausible",
+           "RAMP_LIMITS", "DARK_SHARE", "released", "earlier_charge", "dark_charge"]
 
 DARK_SHARE = 0.5  # shared read noise: the dark lines must show this share of it
 
@@ -65,12 +78,42 @@ DARK_SHARE = 0.5  # shared read noise: the dark lines must show this share of it
 def _cholesky(model, ramps, k):
     """The Cholesky factors of ramp ``k``'s increments (per valid pixel), its
     residual increments, valid mask and increment variances under ``model``
-    (no after-image)."""
+    (with the charge its ramp effects add, :meth:`~.ramps.RampModel.afterglow`)."""
     ramp = ramps[k]
-    mean, shot, r = expected_reads(model, ramp)
+    mean, shot, r = expected_reads(model, ramp, model.afterglow(ramps, k))
     valid = model.valid(ramp)
     chol, d, var = increment_factors(ramp.reads, mean, shot, r, valid, ramp)
     return chol, d, valid, var
+
+
+def _template_parts(model, ramps, template):
+    """Per ramp: the Cholesky factors, the whitened residual increments, the
+    read-out of ``template(k)`` (collected charge per unit of the fitted
+    strength, ``(ny, nx)``) at the valid pixels, to first order, and the times."""
+    parts = []
+    for k in range(len(ramps)):
+        chol, d, valid, _ = _cholesky(model, ramps, k)
+        coupled = model.frame.readout(template(k)[None])[0] - \
+            model.frame.readout(np.zeros((1,) + valid.shape))[0]
+        w0 = np.linalg.solve(chol, d.T[..., None])[..., 0]
+        parts.append((chol, w0, coupled[valid], ramps[k].times))
+    return parts
+
+
+def _template_fit(parts, growth_of, pixels=None):
+    """``(strength, delta chi^2, its variance)``: the weighted least-squares
+    strength of a charge ``strength x template x growth_of(t)`` collected by
+    the reads (:func:`_template_parts`; ``pixels``, one mask per ramp over its
+    valid pixels, restricts the fit to them)."""
+    num = den = 0.0
+    for i, (chol, w0, coupled, t) in enumerate(parts):
+        growth = np.diff(growth_of(t), prepend=0.0)
+        g = np.linalg.solve(chol, (growth[None, :] * coupled[:, None])[..., None])[..., 0]
+        keep = slice(None) if pixels is None else pixels[i]
+        num += float(np.sum(w0[keep] * g[keep]))
+        den += float(np.sum(g[keep] * g[keep]))
+    strength = num / den if den > 0 else 0.0
+    return strength, num * strength, (1.0 / den if den > 0 else math.inf)
 
 
 class RampEffect(Effect):
@@ -105,24 +148,10 @@ class Persistence(RampEffect):
     tau_limit = 20.0
 
     def fit(self, model, ramps, ln_n):
-        parts = []
-        for k in range(len(ramps)):
-            chol, d, valid, _ = _cholesky(model, ramps, k)
-            coupled = model.frame.readout(earlier_charge(ramps, k)[None])[0] - \
-                model.frame.readout(np.zeros((1,) + valid.shape))[0]
-            w0 = np.linalg.solve(chol, d.T[..., None])[..., 0]
-            parts.append((chol, w0, coupled[valid], ramps[k].times))
+        parts = _template_parts(model, ramps, lambda k: earlier_charge(ramps, k))
 
         def solve(tau):
-            num = den = base = 0.0
-            for chol, w0, coupled, t in parts:
-                growth = np.diff(1.0 - np.exp(-t / tau), prepend=0.0)
-                g = np.linalg.solve(chol, (growth[None, :] * coupled[:, None])[..., None])[..., 0]
-                num += float(np.sum(w0 * g))
-                den += float(np.sum(g * g))
-                base += float(np.sum(w0 * w0))
-            frac = num / den if den > 0 else 0.0
-            return frac, base - (base - num * frac)
+            return _template_fit(parts, lambda t: 1.0 - np.exp(-t / tau))[:2]
 
         t = ramps[0].times
         duration = float(t[-1])
@@ -151,6 +180,47 @@ class Persistence(RampEffect):
         if duration is not None and p["tau_s"] > self.tau_limit * duration:
             return (f"a decay time of {p['tau_s']:.3g} s, {p['tau_s'] / duration:.0f} "
                     "integrations: a constant rate (dark current), not a decay")
+        return None
+
+
+class DarkCurrent(RampEffect):
+    """``dark_rate_e_per_s`` (module docstring); :attr:`limit` the largest
+    rate. The fit: weighted least squares of the rate (the dark charge is
+    linear in it), returning as ``extra`` how many sigma apart the rates
+    fitted to the pixels at or under the median SCENE and to those above it
+    lie (``None`` with under 8 pixels in either)."""
+
+    limit = 1000.0
+
+    def fit(self, model, ramps, ln_n):
+        parts = _template_parts(model, ramps, lambda k: np.ones(ramps[k].valid.shape))
+        rate, gain, _ = _template_fit(parts, lambda t: t)
+        dark = []
+        for ramp in ramps:
+            light = earlier_charge([ramp], 0)[model.valid(ramp)]
+            dark.append(light <= np.median(light))
+        apart = None
+        if min(sum(int(d.sum()) for d in dark), sum(int((~d).sum()) for d in dark)) >= 8:
+            low, _, v_low = _template_fit(parts, lambda t: t, dark)
+            high, _, v_high = _template_fit(parts, lambda t: t, [~d for d in dark])
+            apart = (high - low) / math.sqrt(v_low + v_high)
+        params = {"dark_rate_e_per_s": rate}
+        return params, gain - len(self.params) * ln_n, self.added(model, params), apart
+
+    def contradiction(self, p, extra=None):
+        if p["dark_rate_e_per_s"] <= 0:
+            return (f"a negative rate ({p['dark_rate_e_per_s']:.4g} e-/s): the reads "
+                    "collect less than SCENE, not more")
+        if extra is not None and abs(extra) > RAMP_UNEXPLAINED_Z:
+            return (f"the pixels with more light than the median show a rate {extra:+.1f} "
+                    "sigma from those with less: a rate that depends on the light (a SCENE "
+                    "scale or gain error), not charge every pixel generates alike")
+        return None
+
+    def implausible(self, p, readnoise=None, cov=None, duration=None):
+        if p["dark_rate_e_per_s"] > self.limit:
+            return (f"{p['dark_rate_e_per_s']:.4g} e-/s in every pixel (at most "
+                    f"{self.limit:g} e-/s is a working detector's dark current)")
         return None
 
 
@@ -271,6 +341,9 @@ RAMP_EFFECTS = {e.name: e for e in (
     Persistence("persistence", "collection",
                 (Param("fraction", 0.0, -0.05, 0.2, 0.002), Param("tau_s", 10.0, 0.01, 1e5, 1.0)),
                 "a signal left by an earlier exposure that decays during this one"),
+    DarkCurrent("dark_current", "collection",
+                (Param("dark_rate_e_per_s", 0.0, -1e4, 1e5, 1.0),),
+                "charge generated at a uniform rate in every pixel, collected like light"),
     CorrelatedReadNoise("correlated_read_noise", "variance",
                         (Param("row_variance_e2", 0.0, -1e4, 1e5, 1.0),
                          Param("column_variance_e2", 0.0, -1e4, 1e5, 1.0)),

@@ -1,8 +1,10 @@
 """Name what a ramp file's time structure shows and the frame model lacks:
-``persistence``, ``correlated_read_noise``, ``random_telegraph_noise``
-(:mod:`.ramp_effects`) and the frame effects ``brighter_fatter``,
-``signal_dependent_ipc``, ``classical_nonlinearity`` evaluated read by read
-(:mod:`.ramp_chain`), on top of the frame model read by read (:mod:`.ramps`).
+``persistence``, ``dark_current``, ``correlated_read_noise``,
+``random_telegraph_noise`` (:mod:`.ramp_effects`) and the frame effects
+``brighter_fatter``, ``signal_dependent_ipc``, ``classical_nonlinearity`` and
+the IPC geometry terms (``diagonal_ipc``, ``anisotropic_ipc``,
+``second_neighbor_ipc``) evaluated read by read (:mod:`.ramp_chain`), on top of
+the frame model read by read (:mod:`.ramps`).
 
 Procedure (:func:`discover_ramps`)
 ----------------------------------
@@ -15,6 +17,9 @@ Procedure (:func:`discover_ramps`)
      ``fraction`` by weighted least squares at each ``tau`` (the after-image
      is linear in it), the increments whitened by the current model's
      covariance; evidence ``delta chi^2 - 2 ln n``.
+   - ``dark_current``: the rate by weighted least squares (the dark charge
+     is linear in it), and again from the pixels above and at or under the
+     median SCENE apart (its contradiction); evidence ``delta chi^2 - ln n``.
    - ``correlated_read_noise``: the means over each row (column) of the
      increments' residuals, read by read; their variance beyond what the
      pixels' own noise gives, ``2 q`` (a shared offset enters two
@@ -27,12 +32,15 @@ Procedure (:func:`discover_ramps`)
      levels (one parameter per pixel), evidence its chi-square excess over
      its degrees of freedom less
      ``ln n`` per pixel; ``jump_e`` the median of their largest departures.
-   - ``brighter_fatter``, ``signal_dependent_ipc`` (on a constant starting
-     law), ``classical_nonlinearity``: least squares of the whitened
+   - ``brighter_fatter``, ``signal_dependent_ipc`` (on a constant law),
+     ``classical_nonlinearity``, and the geometry terms (on a law with a
+     nearest coupling, ``alpha(0, 0) > 0``): least squares of the whitened
      increments (:func:`~.ramp_chain.fit_frame_effect`), evidence
-     ``delta chi^2 - k ln n``; their contradictions and ranges are the
-     frame vocabulary's, and brighter-fatter and signal-dependent IPC are
-     judged against each other (:func:`~.ramp_chain.rival_contradiction`).
+     ``delta chi^2 - k ln n``; their contradictions, ranges and signatures
+     (:func:`~.ramp_chain.signature_refusal`: a rescaled coupling is not
+     anisotropy) are the frame vocabulary's, and brighter-fatter and
+     signal-dependent IPC are judged against each other
+     (:func:`~.ramp_chain.rival_contradiction`).
 
 3. A candidate is named when its evidence passes the threshold (25), its fit
    does not contradict the effect and lies inside its physical range
@@ -43,9 +51,9 @@ Procedure (:func:`discover_ramps`)
    strongest such one is added; the search repeats until the gap lies within
    3 floor scatters of the floor or nothing qualifies.
 
-The other frame effects (diffusion, geometry terms, reciprocity...) are not
-searched on ramps: a ramp file's starting model carries them from a
-coupling-model file (``start``) or not at all.
+The other frame effects (diffusion, reciprocity, misregistration, flat
+field...) are not searched on ramps: a ramp file's starting model carries
+them from a coupling-model file (``start``) or not at all.
 """
 
 import math
@@ -53,7 +61,7 @@ import math
 from ..model import CouplingModel
 from .effects import contradiction, implausible
 from .model import DetectorModel
-from .ramp_chain import fit_frame_effect, offered, rival_contradiction
+from .ramp_chain import fit_frame_effect, offered, rival_contradiction, signature_refusal
 from .ramp_effects import RAMP_EFFECTS
 from .ramps import RampData, RampModel, ramp_gap, read_ramps
 
@@ -85,9 +93,10 @@ def _trials(model, ramps, data, ln_n, threshold, refused, say):
             fitted[name] = (evidence, params, newer, effect.contradiction(params, extra)
                             or effect.implausible(params, data.readnoise, duration=duration))
     for name in offered(model):
-        params, evidence, newer, _ = fit_frame_effect(name, model, ramps, ln_n)
+        params, evidence, newer, fit = fit_frame_effect(name, model, ramps, ln_n)
         fitted[name] = (evidence, params, newer, contradiction(name, params)
-                        or implausible(name, params, data.readnoise))
+                        or implausible(name, params, data.readnoise)
+                        or signature_refusal(name, fit))
     evidence = {name: f[0] for name, f in fitted.items()}
     trials = {}
     for name, (ev, params, newer, why) in fitted.items():

@@ -61,6 +61,7 @@ __all__ = ["RampPair", "RampData", "RampModel", "whitened", "read_ramps", "write
            "is_ramp_file",
            "read_times", "expected_reads", "expected_mean", "increment_factors", "whiten",
            "simulate_ramp", "ramp_gap", "describe_ramp_misfit", "earlier_charge", "released",
+           "dark_charge",
            "RAMP_UNEXPLAINED_Z"]
 
 RAMP_UNEXPLAINED_Z = 5.0  # a pattern is described when it stands out at this many sigma
@@ -238,6 +239,16 @@ def released(params, ramps, k):
     return float(params["fraction"]) * earlier_charge(ramps, k)[None] * growth[:, None, None]
 
 
+def dark_charge(params, ramps, k):
+    """The dark charge collected by each read of ramp ``k``,
+    ``dark_rate_e_per_s t_i`` in every pixel, ``(NREADS, ny, nx)``
+    (``dark_current`` on ramps, :mod:`.ramp_effects`)."""
+    ramp = ramps[k]
+    rate = float(params["dark_rate_e_per_s"])
+    return np.broadcast_to(rate * ramp.times[:, None, None],
+                           (len(ramp.times),) + ramp.valid.shape).copy()
+
+
 def _charge_scene(ramp):
     """SCENE times each read's time: the expected charge per read if nothing acted."""
     return ramp.rate[None] * ramp.times[:, None, None]
@@ -267,12 +278,13 @@ class RampModel:
                 + max(c.get("column_variance_e2", 0.0), 0.0))
 
     def afterglow(self, ramps, k):
-        """The persistence charge collected by each read of ramp ``k`` (before
-        readout), ``(NREADS, ny, nx)``, or ``None`` (:func:`released`)."""
-        p = self.effects.get("persistence")
-        if p is None:
-            return None
-        return released(p, ramps, k)
+        """The charge the ramp effects add to each read of ramp ``k`` (before
+        readout), ``(NREADS, ny, nx)``, or ``None``: persistence's release
+        (:func:`released`) and the dark charge (:func:`dark_charge`)."""
+        parts = [form(self.effects[name], ramps, k) for name, form in
+                 (("persistence", released), ("dark_current", dark_charge))
+                 if name in self.effects]
+        return sum(parts[1:], parts[0]) if parts else None
 
     def valid(self, ramp):
         return ramp.valid if self.odd is None else ramp.valid & ~self.odd

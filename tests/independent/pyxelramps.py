@@ -177,6 +177,14 @@ def write_ramp_file(path, reads, rates, ipclaw="constant:0"):
 
 
 def make(effect, seed, path):
+    """Write the ramp file of ``effect`` at ``seed``. Where Pyxel's ``simple_ipc``
+    runs, the outer ring of pixels is NaN in MEASURED (a bad pixel, per the format):
+    Pyxel convolves with ``boundary="fill"`` at the frame's mean charge
+    (docs/pyxel.md), an edge rule the format does not state, so the ring is left
+    out rather than judged."""
     rates = [scene_rate(patches) for patches in LIGHTS.get(effect, (True,))]
-    return write_ramp_file(path, pyxel_ramps(effect, seed), rates,
-                           IPCLAW.get(effect, "constant:0"))
+    reads = pyxel_ramps(effect, seed)
+    if any(group == "ipc" for group, _ in EFFECTS[effect]):
+        reads[..., [0, -1], :] = np.nan
+        reads[..., :, [0, -1]] = np.nan
+    return write_ramp_file(path, reads, rates, IPCLAW.get(effect, "constant:0"))
