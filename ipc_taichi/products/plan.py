@@ -5,7 +5,7 @@ Every path that corrects a product asks this module, in one sequence
 Roman ASDF (:func:`ipc_taichi.products.roman.process_asdf`), the JWST Step
 (:func:`ipc_taichi.products.jwst_step.correct_model`) and calibrate's reader
 (:mod:`ipc_taichi.calibrate.inputs`, which asks :func:`dq_bits_of` and
-:func:`layout_of`). A reader only says what its file holds, as one
+:func:`science_region_of`). A reader only says what its file holds, as one
 :class:`ArrayFacts` per science array (its shape, a keyword look-up of its
 own header and of its product's, its ``REFERENCE_PIXEL`` flags); the
 decisions, in this order, are made here:
@@ -19,8 +19,8 @@ decisions, in this order, are made here:
    else the mission's time keywords); ``--coadds`` or ``NCOADDS``/``NDIT``;
    hence electrons per data unit
    (:func:`~ipc_taichi.products.conventions.charge_scale`).
-3. **Layout** (:func:`layout_of`): how the frame is read out (its
-   :class:`~ipc_taichi.products.layouts.Arrangement`: contiguous, or NIRSpec
+3. **Science region** (:func:`science_region_of`): how the frame is read out (its
+   :class:`~ipc_taichi.products.arrangement.Arrangement`: contiguous, or NIRSpec
    IRS2 with reference samples interleaved), then the science region inside
    the reference pixels of the contiguous image (``--refpix``, else the
    ``REFERENCE_PIXEL`` flags, else the observatory's convention,
@@ -47,14 +47,15 @@ import numpy as np
 
 from ..errors import IPCInputError
 from ..model import CouplingModel
+from . import arrangement as arrangements
 from . import conventions as cv
-from . import layouts, missions
+from . import missions
 from .checks import check_gain_image, check_pedestal, header_gain
 from .gain import read_frame, read_gain
 
-__all__ = ["ArrayFacts", "ArrayPlan", "Layout", "ProductPlan", "Zeroth", "plan_product",
+__all__ = ["ArrayFacts", "ArrayPlan", "ScienceRegion", "ProductPlan", "Zeroth", "plan_product",
            "plan_array", "dq_bits_of", "say_lacking",
-           "arrangement_of", "layout_of", "edge_of", "BEYOND"]
+           "arrangement_of", "science_region_of", "edge_of", "BEYOND"]
 
 BEYOND = ("reference", "pixels", "unknown")
 """What lies beyond a science region's edge: reference pixels (zero-signal
@@ -116,7 +117,7 @@ class Zeroth:
 
 class _Header:
     """A keyword look-up (``key -> value or None``) as the mapping
-    :mod:`~ipc_taichi.products.layouts` reads."""
+    :mod:`~ipc_taichi.products.arrangement` reads."""
 
     def __init__(self, lookup):
         self.lookup = lookup
@@ -127,7 +128,7 @@ class _Header:
 
 
 @dataclass(frozen=True)
-class Layout:
+class ScienceRegion:
     """Where the science is in a frame.
 
     Attributes
@@ -135,21 +136,21 @@ class Layout:
     shape : (int, int)
         The contiguous image of the frame (:attr:`arrangement`'s
         ``science_shape``; the stored frame itself unless interleaved).
-    region : (slice, slice)
-        The science region inside the reference pixels.
+    slices : (slice, slice)
+        The science region inside the reference pixels, as the frame's slices.
     inside : ndarray of bool or None
-        Reference-flagged pixels inside ``region`` (treated as masked).
+        Reference-flagged pixels inside ``slices`` (treated as masked).
     beyond : str
         What lies beyond the region's edge (:data:`BEYOND`).
     source : str
-        Where the layout came from (one phrase).
+        Where the region came from (one phrase).
     arrangement : Arrangement
         How the stored frame holds that image
-        (:func:`~ipc_taichi.products.layouts.arrangement_of`).
+        (:func:`~ipc_taichi.products.arrangement.arrangement_of`).
     """
 
     shape: tuple
-    region: tuple
+    slices: tuple
     inside: object
     beyond: str
     source: str
@@ -158,7 +159,7 @@ class Layout:
     @property
     def widths(self):
         """Reference pixels outside the region: (bottom, top, left, right)."""
-        (ys, xs), (ny, nx) = self.region, self.shape
+        (ys, xs), (ny, nx) = self.slices, self.shape
         return ys.start, ny - ys.stop, xs.start, nx - xs.stop
 
     def inside_mask(self):
@@ -166,7 +167,7 @@ class Layout:
         if self.inside is None:
             return None
         full = np.zeros(self.shape, dtype=bool)
-        full[self.region] = self.inside
+        full[self.slices] = self.inside
         return full
 
 
@@ -187,8 +188,8 @@ class ArrayPlan:
     scale : float or ndarray
         Electrons per data unit, per exposure.
     coadds : int
-    layout : Layout
-        Its readout arrangement and science region.
+    science_region : ScienceRegion
+        Its science region and readout arrangement.
     model : CouplingModel
         The model with the edge rule the frame gets.
     edge_reason : str
@@ -208,7 +209,7 @@ class ArrayPlan:
     exptime: object
     scale: object
     coadds: int
-    layout: Layout
+    science_region: ScienceRegion
     model: object
     edge_reason: str
     pedestal: object = None
@@ -216,21 +217,21 @@ class ArrayPlan:
 
     @property
     def region(self):
-        return self.layout.region
+        return self.science_region.slices
 
     @property
     def inside(self):
-        return self.layout.inside
+        return self.science_region.inside
 
     @property
     def arrangement(self):
-        return self.layout.arrangement
+        return self.science_region.arrangement
 
     @property
     def science_shape(self):
         """The shape of the contiguous image(s) corrected (:attr:`shape` unless
         the frames are interleaved)."""
-        return tuple(self.shape[:-2]) + tuple(self.layout.shape)
+        return tuple(self.shape[:-2]) + tuple(self.science_region.shape)
 
     @property
     def frames(self):
@@ -261,7 +262,7 @@ def dq_bits_of(text, mission):
     alone: a name it lacks is not taken from the mission's (a NIRSpec dark's
     bit 2 is WARM, JWST's science bit 2 SATURATED) but returned in
     ``lacking`` for the caller to say. ``REFERENCE_PIXEL`` is never a bit
-    left out (reference pixels are the layout's).
+    left out (reference pixels are the science region's).
 
     Returns
     -------
@@ -305,15 +306,15 @@ def _open_edge(mission):
 
 def arrangement_of(facts, shape2d):
     """How the stored frame of ``facts`` is read out
-    (:func:`~ipc_taichi.products.layouts.arrangement_of`; contiguous when
+    (:func:`~ipc_taichi.products.arrangement.arrangement_of`; contiguous when
     nothing is known of it)."""
     if facts is None:
-        return layouts.Arrangement.contiguous(shape2d)
-    return layouts.arrangement_of(_Header(facts.product), _Header(facts.own),
+        return arrangements.Arrangement.contiguous(shape2d)
+    return arrangements.arrangement_of(_Header(facts.product), _Header(facts.own),
                                   tuple(facts.shape[:-2]) + tuple(shape2d), facts.label)
 
 
-def layout_of(shape2d, mission, facts=None, refpix=None):
+def science_region_of(shape2d, mission, facts=None, refpix=None):
     """How a frame is read out, its science region and what lies beyond its edge.
 
     First the frame's readout arrangement (:func:`arrangement_of`: an IRS2
@@ -332,7 +333,7 @@ def layout_of(shape2d, mission, facts=None, refpix=None):
 
     Returns
     -------
-    Layout
+    ScienceRegion
 
     Raises
     ------
@@ -346,23 +347,23 @@ def layout_of(shape2d, mission, facts=None, refpix=None):
     label = facts.label if facts is not None else "data"
     whole = (slice(0, shape2d[0]), slice(0, shape2d[1]))
 
-    def region_of(n=None, reference=None):
+    def slices_of(n=None, reference=None):
         try:
             return cv.science_region(shape2d, n, reference)
         except IPCInputError as exc:
             raise IPCInputError(f"{label}: {exc}") from None
 
     def made(region, inside, beyond, source):
-        return Layout(shape2d, region, inside, beyond, source, arrangement)
+        return ScienceRegion(shape2d, region, inside, beyond, source, arrangement)
 
     if refpix is not None:
-        region, _ = region_of(refpix)
+        region, _ = slices_of(refpix)
         beyond = "reference" if int(refpix) else _open_edge(mission)
         return made(region, None, beyond, f"--refpix {int(refpix)}")
     flagged = facts.reference() if facts is not None and facts.reference else None
     flagged = arrangement.to_science(flagged)
     if flagged is not None and flagged.any():
-        region, inside = region_of(None, flagged)
+        region, inside = slices_of(None, flagged)
         beyond = "reference" if region != whole else _open_edge(mission)
         return made(region, inside, beyond, "REFERENCE_PIXEL flags")
     border = None
@@ -378,11 +379,11 @@ def layout_of(shape2d, mission, facts=None, refpix=None):
         return made(whole, None, _open_edge(mission), "no reference pixels")
     if border.stored_apart:
         return made(whole, None, "reference", border.source)
-    region, _ = region_of(None, border.mask(shape2d))
+    region, _ = slices_of(None, border.mask(shape2d))
     return made(region, None, "reference", border.source)
 
 
-def edge_of(model, asked, layout):
+def edge_of(model, asked, science_region):
     """The model for a frame's science region, and why its edge rule.
 
     The model says which edge it asks for (``asked``: the rule the caller
@@ -404,11 +405,11 @@ def edge_of(model, asked, layout):
     model : CouplingModel
     reason : str
     """
-    if layout.beyond == "reference":
-        edge, reason = "zero", f"reference pixels ({layout.source}): zero-signal neighbours"
+    if science_region.beyond == "reference":
+        edge, reason = "zero", f"reference pixels ({science_region.source}): zero-signal neighbours"
     elif asked is not None:
         edge, reason = asked, "asked for (--edge)"
-    elif layout.beyond == "pixels":
+    elif science_region.beyond == "pixels":
         edge, reason = "isolated", "no reference border (cut-out or subarray)"
     else:
         edge, reason = model.edge, "default (plain image)"
@@ -448,7 +449,7 @@ def _pedestal_option(options):
     return option, option not in ("none", "auto", False, 0, "0")
 
 
-def _pedestal(facts, options, gain, zeroth, layout):
+def _pedestal(facts, options, gain, zeroth, science_region):
     """The pedestal of one array, electrons (None when none), in the science
     image's shape (a pedestal image is given in the product's frame shape)."""
     option, given = _pedestal_option(options)
@@ -459,8 +460,8 @@ def _pedestal(facts, options, gain, zeroth, layout):
         frame = np.asarray(read_frame(option, shape2d, "pedestal"), dtype=np.float64)
         check_pedestal(frame, option, cv.PHYSICAL_RANGE)
         if frame.ndim == 2:
-            frame = layout.arrangement.to_science(frame)
-        return np.broadcast_to(frame, tuple(layout.shape))
+            frame = science_region.arrangement.to_science(frame)
+        return np.broadcast_to(frame, tuple(science_region.shape))
     if option == "auto" and zeroth is not None:
         if tuple(zeroth.shape2d) != shape2d:
             raise IPCInputError(f"{facts.label}: the zeroth read has another shape")
@@ -471,11 +472,11 @@ def _pedestal(facts, options, gain, zeroth, layout):
 def plan_array(facts, mission, model, options, zeroth=None):
     """The :class:`ArrayPlan` of one science array (steps 2-5 of the module's
     sequence). ``zeroth``: the product's zeroth read (:class:`Zeroth`) or None."""
-    layout = layout_of(facts.shape[-2:], mission, facts, options.refpix)
-    if options.tile and not layout.arrangement.identity:
+    where = science_region_of(facts.shape[-2:], mission, facts, options.refpix)
+    if options.tile and not where.arrangement.identity:
         raise IPCInputError(f"{facts.label}: an IRS2 frame (reference samples interleaved) is "
                             "corrected whole: run without --tile")
-    shape2d = layout.shape
+    shape2d = where.shape
     units = _units(facts, mission, options)
     gain = read_gain(options.gain if options.gain is not None else
                      header_gain(facts.keyword("GAIN"), facts.label), shape2d)
@@ -485,16 +486,16 @@ def plan_array(facts, mission, model, options, zeroth=None):
     scale, units_text = cv.charge_scale(units, gain, exptime, facts.label,
                                         time_source=mission.time_source, coadds=coadds,
                                         gain_source=mission.gain_source)
-    inner, reason = edge_of(model, options.edge, layout)
+    inner, reason = edge_of(model, options.edge, where)
     if model.bonds is not None:  # the science region's map (one of the whole frame is cut)
         inner = CouplingModel(inner.law, inner.geometry, inner.edge,
-                              inner.bonds.for_region(layout.region, shape2d, facts.label))
-    pedestal = _pedestal(facts, options, gain, zeroth, layout)
+                              inner.bonds.for_region(where.slices, shape2d, facts.label))
+    pedestal = _pedestal(facts, options, gain, zeroth, where)
     if pedestal is not None and options.tile:
         raise IPCInputError(f"{facts.label}: --tile cannot add the pedestal (zeroth read); run "
                             "without --tile, or give --pedestal none")
     return ArrayPlan(facts.index, facts.name, facts.label, tuple(facts.shape), units_text,
-                     exptime, scale, coadds, layout, inner, reason, pedestal,
+                     exptime, scale, coadds, where, inner, reason, pedestal,
                      len(facts.shape) > 2 and not units.rate and options.warm_start)
 
 
