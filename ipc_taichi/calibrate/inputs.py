@@ -30,14 +30,14 @@ numbers became electrons.
 
 **Units, gain, science region and DQ** (:func:`plan_charge`): decided by the product
 plan, as for ``decouple`` (:func:`ipc_taichi.products.plan.plan_array`:
-``bunit`` overrides BUNIT; DN need a gain, given or the GAIN keyword; a gain
-given for data in electrons is refused, in the same words), the pixels left
-out by :func:`ipc_taichi.products.conventions.untrusted` with the bits of
-:func:`ipc_taichi.products.plan.dq_bits_of`. Calibrate's own readings: rates
-are refused (it needs accumulated charge), and a file without units is DN
-when a gain is given or the file has a GAIN keyword (``decouple`` takes it
-as electrons), electrons otherwise. Each case is said in
-``meta["units_note"]``; never silent.
+``bunit`` overrides BUNIT; a file without units is DN when a gain is given
+or the file has a GAIN keyword, electrons otherwise,
+:func:`ipc_taichi.products.plan.units_of`; DN need a gain, given or the GAIN
+keyword; a gain given for data in electrons is refused, in the same words),
+the pixels left out by :func:`ipc_taichi.products.conventions.untrusted`
+with the bits of :func:`ipc_taichi.products.plan.dq_bits_of`. Calibrate's own
+reading: rates are refused (it needs accumulated charge). Each case is said
+in ``meta["units_note"]``; never silent.
 
 **Refusals** (:class:`~ipc_taichi.errors.IPCInputError`, one line naming the
 file and HDU): bias products (:func:`ipc_taichi.products.missions.check_not_bias`,
@@ -172,14 +172,14 @@ def plan_charge(facts, mission, gain=None, bunit=None, refpix=None, source="BUNI
     and the sentence that says how its numbers became electrons.
 
     Units, gain and the science region are :func:`ipc_taichi.products.plan.plan_array`'s
-    (the rule of ``decouple``: DN need a gain, given or the GAIN keyword; a
-    gain given for data in electrons is refused; a GAIN keyword that is not
-    a number, or a gain image with no usable pixel, is refused naming it).
-    Calibrate adds two readings of its own: rates are refused (it needs
-    accumulated charge), and a file without units is taken as DN when a gain
-    is known (given, or its GAIN keyword; a lab file's habit), where
-    ``decouple`` takes it as electrons. The frames are measured as stored
-    (``NCOADDS`` is not applied: a coadded frame's noise is its sum's).
+    (the rule of ``decouple``, :func:`ipc_taichi.products.plan.units_of`: a
+    file without units is DN when a gain is known, given or its GAIN
+    keyword, else electrons; DN need a gain; a gain given for data in
+    electrons is refused; a GAIN keyword that is not a number, or a gain
+    image with no usable pixel, is refused naming it). Calibrate adds one
+    reading of its own: rates are refused (it needs accumulated charge). The
+    frames are measured as stored (``NCOADDS`` is not applied: a coadded
+    frame's noise is its sum's).
 
     Parameters
     ----------
@@ -214,19 +214,18 @@ def plan_charge(facts, mission, gain=None, bunit=None, refpix=None, source="BUNI
     said = "bunit" if bunit is not None else source
     gain_source = "given" if gain is not None else (
         "GAIN keyword" if facts.keyword("GAIN") is not None else None)
-    asked = bunit
-    if text is not None and str(text).strip():
-        head = f"{said} {str(text).strip()!r}"
-    elif gain_source is not None:
-        head, asked = f"no {source}: taken as DN", "DN"
-    else:
-        head = f"no {source} and no gain: taken as electrons"
-    units = cv.parse_units(asked if asked is not None else text, facts.label, said)
+    options = ProductOptions.from_kwargs(gain=gain, bunit=bunit, refpix=refpix, pedestal="none",
+                                         coadds=1)
+    units = plan.units_of(facts, mission, options, said)  # decouple's rule, no-BUNIT case too
     if units.rate:
         raise IPCInputError(f"{facts.label}: a rate ({units.text}); calibrate needs darks, "
                             "ramps or flats of accumulated charge (DN or electrons)")
-    options = ProductOptions.from_kwargs(gain=gain, bunit=asked, refpix=refpix, pedestal="none",
-                                         coadds=1)
+    if text is not None and str(text).strip():
+        head = f"{said} {str(text).strip()!r}"
+    elif units.needs_gain:
+        head = f"no {source}: taken as DN"
+    else:
+        head = f"no {source} and no gain: taken as electrons"
     arrays = plan.plan_array(facts, mission, CouplingModel.resolve(), options)
     if not units.needs_gain:
         note = head if head.startswith("no ") else f"{head}: electrons"

@@ -401,7 +401,8 @@ def calibrate(darks=(), flats=(), reference=None, output=None, *, report_path=No
     gain : float or str, optional
         e-/DN for inputs in DN (default: each file's GAIN keyword), every
         input's; refused for an input in electrons, as ``decouple`` refuses
-        it. A file without BUNIT is taken as DN when a gain is known (said).
+        it. A file without BUNIT is taken as DN when a gain is known, else as
+        electrons (the product plan's rule, decouple's too; said).
     bunit : str, optional
         Units of the inputs, overriding their BUNIT.
     hdu : optional

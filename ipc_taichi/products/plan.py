@@ -14,7 +14,9 @@ decisions, in this order, are made here:
    when it has one, else its mission's
    (:mod:`~ipc_taichi.products.missions`); a name the ``DQ_DEF`` lacks is
    said in one line and never taken from another table.
-2. **Units and gain**: ``--bunit`` or ``BUNIT`` (a Roman product's kind);
+2. **Units and gain** (:func:`units_of`): ``--bunit`` or ``BUNIT`` (a Roman
+   product's kind); with neither, DN when a gain is known (``--gain`` or a
+   ``GAIN`` keyword), else electrons: one rule for decouple and calibrate;
    ``--gain`` or ``GAIN``; for a rate, the integration time (``--exptime``,
    else the mission's time keywords); ``--coadds`` or ``NCOADDS``/``NDIT``;
    hence electrons per data unit
@@ -54,7 +56,7 @@ from .checks import check_gain_image, check_pedestal, header_gain
 from .gain import read_frame, read_gain
 
 __all__ = ["ArrayFacts", "ArrayPlan", "ScienceRegion", "ProductPlan", "Zeroth", "plan_product",
-           "plan_array", "dq_bits_of", "say_lacking",
+           "plan_array", "units_of", "units_in", "dq_bits_of", "say_lacking",
            "arrangement_of", "science_region_of", "edge_of", "BEYOND"]
 
 BEYOND = ("reference", "pixels", "unknown")
@@ -418,15 +420,42 @@ def edge_of(model, asked, science_region):
     return CouplingModel(model.law, model.geometry, edge, model.bonds), reason
 
 
-def _units(facts, mission, options):
-    source = "--bunit" if options.bunit is not None and mission.name == "Roman" else \
-        mission.units_source
-    units = cv.parse_units(options.bunit if options.bunit is not None
-                           else facts.keyword("BUNIT"), facts.label, source)
+def units_in(text, gain_known, label, source="BUNIT"):
+    """:class:`~ipc_taichi.products.conventions.Units` of a ``BUNIT`` value
+    ``text`` by the rule of :func:`units_of`: none given, DN when
+    ``gain_known``, else electrons (``source`` names the keyword)."""
+    if (text is None or not str(text).strip()) and gain_known:
+        return cv.Units("dn", f"DN (no {source}, a gain known)")
+    return cv.parse_units(text, label, source)
+
+
+def units_of(facts, mission, options, source=None):
+    """What the numbers of a science array are, by the one rule of every path
+    (decouple, the Step, calibrate).
+
+    ``options.bunit``, else the array's ``BUNIT`` (a Roman product's kind).
+    With neither, **DN when a gain is known** (``options.gain``, or a
+    ``GAIN`` keyword: a gain is written beside numbers in DN; a lab file's
+    habit, the solid-waffle simulator's), **else electrons**, the law's unit.
+    The DN so taken say so in their text (the HISTORY's, calibrate's note).
+    ``source`` names where the units come from in errors (default: the
+    mission's, ``--bunit`` for a Roman override).
+
+    Raises
+    ------
+    IPCInputError
+        Flux or unknown units; a gain given for data in electrons (one line
+        naming the array).
+    """
+    if source is None:
+        source = "--bunit" if options.bunit is not None and mission.name == "Roman" else \
+            mission.units_source
+    text = options.bunit if options.bunit is not None else facts.keyword("BUNIT")
+    known = options.gain is not None or facts.keyword("GAIN") is not None
+    units = units_in(text, known, facts.label, source)
     if options.gain is not None and not units.needs_gain:
         raise IPCInputError(f"{facts.label}: a gain was given but the data are in "
-                            f"{units.text or 'electrons (no BUNIT)'}; give --bunit DN or "
-                            "DN/s if they are not")
+                            f"{units.text}; give --bunit DN or DN/s if they are not")
     if facts.zeroth:  # a zeroth read holds the charge since reset, not a rate
         units = cv.Units(units.kind.replace("_rate", ""), units.text)
     return units
@@ -477,7 +506,7 @@ def plan_array(facts, mission, model, options, zeroth=None):
         raise IPCInputError(f"{facts.label}: an IRS2 frame (reference samples interleaved) is "
                             "corrected whole: run without --tile")
     shape2d = where.shape
-    units = _units(facts, mission, options)
+    units = units_of(facts, mission, options)
     gain = read_gain(options.gain if options.gain is not None else
                      header_gain(facts.keyword("GAIN"), facts.label), shape2d)
     check_gain_image(cv.unusable_gain(gain) if np.ndim(gain) == 2 else None, facts.label)
