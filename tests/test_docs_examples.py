@@ -110,6 +110,17 @@ def test_analysis_psf_and_fwhm_numbers():
     assert f"{100 * image[20, 20]:.2f}" == central
 
 
+def test_analysis_airy_fwhm():
+    from analysis.fwhm import fwhm_azimuthal
+    from analysis.psf import JWST_DIAMETER, PIXEL_SCALE, WAVELENGTH, optical_psf
+
+    text = _read("docs/analysis.md")
+    said, = _found(r'optical_psf\("airy"\)\s+# Airy disk, same lambda/D \(D = 6.5 m\), FWHM '
+                   r"([\d.]+) lambda/D", text)
+    lambda_over_d = np.degrees(WAVELENGTH / JWST_DIAMETER) * 3600 / PIXEL_SCALE  # pixels
+    assert f"{fwhm_azimuthal(optical_psf('airy'), 4) / lambda_over_d:.3f}" == said
+
+
 def test_analysis_zero_point_counts():
     from analysis.simulate import ZERO_POINT, flux_from_mag
 
