@@ -46,15 +46,15 @@ def _frames(rng, nframes, level, drift=0.0, gradient=0.3, prnu=0.03):
                     dtype=float)
 
 
-# ---- layout --------------------------------------------------------------------------
+# ---- ramp or frames ------------------------------------------------------------------
 
 def test_4d_sci_is_ramps(tmp_path, rng):
     data = np.array([_ramp(rng, 5, 800.0) for _ in range(3)])
     f = read_frames(_write(tmp_path / "r4.fits", data, bunit="electron"), role="flat")
     assert f.data.shape == f.mask.shape == (3, 5, NY, NX) and f.data.dtype == np.float64
-    assert f.meta["layout"] == "ramp"
+    assert f.meta["stack"] == "ramp"
     assert (f.meta["nints"], f.meta["ngroups"], f.meta["nframes"]) == (3, 5, 5)
-    assert "4-D SCI (3 integrations x 5 groups" in f.meta["layout_reason"]
+    assert "4-D SCI (3 integrations x 5 groups" in f.meta["stack_reason"]
     np.testing.assert_allclose(f.data, data.astype(np.float32))
 
 
@@ -62,8 +62,8 @@ def test_rising_cube_is_one_ramp(tmp_path, rng):
     data = _ramp(rng, 8, 2000.0)
     f = read_frames(_write(tmp_path / "r3.fits", data), role="flat")
     assert f.data.shape == (1, 8, NY, NX)
-    assert f.meta["layout"] == "ramp" and (f.meta["nints"], f.meta["ngroups"]) == (1, 8)
-    reason = f.meta["layout_reason"]
+    assert f.meta["stack"] == "ramp" and (f.meta["nints"], f.meta["ngroups"]) == (1, 8)
+    reason = f.meta["stack_reason"]
     assert reason.startswith("3-D cube of 8 reads whose mean rises") and "(a ramp)" in reason
     first, last = (float(x) for x in reason.split("rises ")[1].split(" e-")[0].split(" -> "))
     assert first == pytest.approx(2000, rel=0.1) and last == pytest.approx(16000, rel=0.1)
@@ -75,11 +75,11 @@ def test_frames_at_one_level_stay_frames_even_with_lamp_drift(tmp_path, rng):
     data = _frames(rng, 6, 20000.0, drift=0.003)
     f = read_frames(_write(tmp_path / "f.fits", data, bunit="electron"), role="flat")
     assert f.data.shape == (1, 6, NY, NX)
-    assert f.meta["layout"] == "frames" and f.meta["ngroups"] is None
+    assert f.meta["stack"] == "frames" and f.meta["ngroups"] is None
     assert f.meta["nframes"] == 6 and f.meta["nints"] == 1
-    assert f.meta["layout_reason"].startswith("3-D stack of 6 frames at one level")
+    assert f.meta["stack_reason"].startswith("3-D stack of 6 frames at one level")
     steady = read_frames(_write(tmp_path / "g.fits", _frames(rng, 2, 5000.0)))
-    assert steady.meta["layout"] == "frames"
+    assert steady.meta["stack"] == "frames"
 
 
 def test_ramp_test_margins():
@@ -103,19 +103,19 @@ def test_dark_cube_is_a_ramp_by_its_jwst_keywords(tmp_path, rng):
     keys = {"NGROUPS": 6, "NINTS": 1, "READPATT": "NRSRAPID", "TELESCOP": "JWST"}
     f = read_frames(_write(tmp_path / "d.fits", dark, bunit="electron", primary=keys),
                     role="dark")
-    assert f.meta["layout"] == "ramp" and f.meta["ngroups"] == 6
-    assert "NGROUPS = 6, READPATT NRSRAPID" in f.meta["layout_reason"]
-    assert "within 5 x its noise" in f.meta["layout_reason"]
+    assert f.meta["stack"] == "ramp" and f.meta["ngroups"] == 6
+    assert "NGROUPS = 6, READPATT NRSRAPID" in f.meta["stack_reason"]
+    assert "within 5 x its noise" in f.meta["stack_reason"]
     plain = read_frames(_write(tmp_path / "d2.fits", dark, bunit="electron"), role="dark")
-    assert plain.meta["layout"] == "frames"
+    assert plain.meta["stack"] == "frames"
 
 
 def test_2d_is_one_frame(tmp_path, rng):
     f = read_frames(_write(tmp_path / "one.fits", rng.normal(100, 3, (NY, NX))))
-    assert f.data.shape == (1, 1, NY, NX) and f.meta["layout"] == "frames"
-    assert f.meta["layout_reason"] == "2-D SCI: one frame" and f.meta["nframes"] == 1
+    assert f.data.shape == (1, 1, NY, NX) and f.meta["stack"] == "frames"
+    assert f.meta["stack_reason"] == "2-D SCI: one frame" and f.meta["nframes"] == 1
     g = read_frames(_write(tmp_path / "one3.fits", rng.normal(100, 3, (1, NY, NX))))
-    assert g.meta["layout"] == "frames" and g.meta["layout_reason"] == "3-D SCI: one frame"
+    assert g.meta["stack"] == "frames" and g.meta["stack_reason"] == "3-D SCI: one frame"
 
 
 # ---- units and gain ------------------------------------------------------------------
@@ -243,7 +243,7 @@ def test_other_reference_files_refused_but_darks_read(tmp_path, rng):
         read_frames(ipc_ref, role="dark")
     dark_ref = _write(tmp_path / "jwst_dark.fits", rng.normal(0, 3, (4, NY, NX)), bunit="DN",
                       primary={"REFTYPE": "DARK", "NGROUPS": 4})
-    assert read_frames(dark_ref, gain=1.0, role="dark").meta["layout"] == "ramp"
+    assert read_frames(dark_ref, gain=1.0, role="dark").meta["stack"] == "ramp"
 
 
 def test_uncal_ramp_read_as_charge_since_its_first_read(tmp_path, rng):
@@ -253,9 +253,9 @@ def test_uncal_ramp_read_as_charge_since_its_first_read(tmp_path, rng):
     path = _write(tmp_path / "jw_uncal.fits", raw, bunit="DN",
                   primary={"TELESCOP": "JWST", "NGROUPS": 5, "NINTS": 2})
     f = read_frames(path, gain=2.0, role="flat")
-    assert f.meta["layout"] == "ramp" and f.meta["first_read_subtracted"]
+    assert f.meta["stack"] == "ramp" and f.meta["first_read_subtracted"]
     assert (f.meta["nints"], f.meta["ngroups"]) == (2, 5)
-    assert "raw (_uncal) ramp, its first read subtracted" in f.meta["layout_reason"]
+    assert "raw (_uncal) ramp, its first read subtracted" in f.meta["stack_reason"]
     expected = 2.0 * (raw.astype(float) - raw[:, :1].astype(float))
     np.testing.assert_allclose(f.data, expected)
     assert np.nanmedian(f.data[:, -1]) == pytest.approx(4 * 600.0, rel=0.05)
@@ -314,6 +314,6 @@ def test_roman_ramp_read_and_said(tmp_path, rng):
     path = str(tmp_path / "ramp.asdf")
     model.save(path)
     f = read_frames(path, gain=2.0, refpix=0, role="flat")
-    assert f.meta["layout"] == "ramp" and f.meta["ngroups"] == 4
+    assert f.meta["stack"] == "ramp" and f.meta["ngroups"] == 4
     assert f.meta["units_note"] == "Roman schema 'DN': DN converted with gain 2 e-/DN given"
     np.testing.assert_allclose(f.data[0], 2.0 * np.asarray(model.data, dtype=float))

@@ -409,14 +409,14 @@ def test_an_asdf_input_with_a_fits_output_is_refused_before_the_work(cli, tmp_pa
 
 @pytest.mark.parametrize("shape", [(1, 2, 1600, 2048), (2048, 1600), (512, 512)])
 def test_a_cut_of_an_irs2_frame_is_refused_not_taken_as_contiguous(shape):
-    from ipc_taichi.products import layouts
+    from ipc_taichi.products.arrangement import arrangement_of
 
     header = {"TELESCOP": "JWST", "INSTRUME": "NIRSPEC", "DETECTOR": "NRS1",
               "READPATT": "NRSIRS2", "NRS_NORM": 16, "NRS_REF": 4}
     with pytest.raises(IPCInputError, match=r"jw_uncal.fits\[SCI\]: an IRS2 frame .*refused"):
-        layouts.arrangement_of(header, {}, shape, "jw_uncal.fits[SCI]")
+        arrangement_of(header, {}, shape, "jw_uncal.fits[SCI]")
     # the detector image (a rate, the samples removed by the pipeline) stays contiguous
-    assert layouts.arrangement_of(header, {}, (2048, 2048), "x").identity
+    assert arrangement_of(header, {}, (2048, 2048), "x").identity
 
 
 def _whole_prefix(card, text, separators):

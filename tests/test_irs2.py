@@ -11,7 +11,7 @@ import ipc_taichi
 from ipc_taichi.datasets import star_field
 from ipc_taichi.errors import IPCInputError
 from ipc_taichi.products import irs2
-from ipc_taichi.products.layouts import arrangement_of
+from ipc_taichi.products.arrangement import arrangement_of
 
 LABEL = "jw_irs2_uncal.fits[SCI]"
 GAIN = 2.0  # e-/DN
@@ -175,7 +175,7 @@ def test_wrong_shapes_refused():
 
 def _irs2_ramp(truth_e, geometry, rng):
     """A bias-free IRS2 ramp in DN: ``truth_e`` (groups, 2048, 2048) coupled in
-    the contiguous science layout, reference samples around 0 DN."""
+    the contiguous science image, reference samples around 0 DN."""
     science = ipc_taichi.couple(truth_e, law=LAW) / GAIN
     reference = rng.normal(0.0, 20.0, (1,) + truth_e.shape[:1] + geometry.shape)
     return irs2.interleave(science[None].astype(np.float32), reference.astype(np.float32),
@@ -184,7 +184,7 @@ def _irs2_ramp(truth_e, geometry, rng):
 
 @pytest.mark.parametrize("detector", ["NRS1", "NRS2"])
 def test_irs2_ramp_decoupled_within_1_dn(cpu, detector):
-    """Truth -> couple (contiguous) -> interleave -> layout -> decouple ->
+    """Truth -> couple (contiguous) -> interleave -> arrangement -> decouple ->
     re-interleave: every science pixel within 1 DN of the truth, every reference
     sample bit for bit; decoupling the interleaved frame as if contiguous (the
     old behaviour) is far off."""
@@ -194,24 +194,24 @@ def test_irs2_ramp_decoupled_within_1_dn(cpu, detector):
     truth[:b] = truth[-b:] = 0.0
     truth[:, :b] = truth[:, -b:] = 0.0
     truth_e = truth[None] * np.array([0.5, 1.0])[:, None, None]  # two groups of a ramp
-    layout = arrangement_of(header(DETECTOR=detector), {}, (1, 2, 3200, 2048), LABEL)
-    assert layout.kind == "irs2" and layout.science_shape == (2048, 2048)
-    ramp = _irs2_ramp(truth_e, layout.irs2, rng)
+    arrangement = arrangement_of(header(DETECTOR=detector), {}, (1, 2, 3200, 2048), LABEL)
+    assert arrangement.kind == "irs2" and arrangement.science_shape == (2048, 2048)
+    ramp = _irs2_ramp(truth_e, arrangement.irs2, rng)
 
-    science_e = layout.to_science(ramp)[0].astype(np.float64) * GAIN
+    science_e = arrangement.to_science(ramp)[0].astype(np.float64) * GAIN
     decoupled = ipc_taichi.decouple(science_e, law=LAW) / GAIN
-    out = layout.from_science(decoupled[None].astype(np.float32), ramp)
+    out = arrangement.from_science(decoupled[None].astype(np.float32), ramp)
 
     truth_dn = truth_e / GAIN
     error = np.abs(x_irs2.from_irs2(out, x_irs2.make_mask(out), detector)[0] - truth_dn)
     assert error.max() < 1.0
-    reference = ~irs2.science_rows(layout.irs2)
+    reference = ~irs2.science_rows(arrangement.irs2)
     np.testing.assert_array_equal(out[..., reference, :].view(np.uint32),
                                   ramp[..., reference, :].view(np.uint32))
 
     naive = ipc_taichi.decouple(ramp[0].astype(np.float64) * GAIN, law=LAW) / GAIN
-    naive_error = np.abs(layout.to_science(naive) - truth_dn)
-    uncorrected = np.abs(layout.to_science(ramp)[0] - truth_dn)
+    naive_error = np.abs(arrangement.to_science(naive) - truth_dn)
+    uncorrected = np.abs(arrangement.to_science(ramp)[0] - truth_dn)
     assert naive_error.max() > 100.0  # DN, on the science rows beside the reference samples
     assert (naive_error > 1.0).mean() > 0.03
     assert (uncorrected > 1.0).mean() > 0.05  # the coupling itself is well above 1 DN

@@ -1,17 +1,17 @@
-"""JWST layouts through the public product paths: the command line's
-``process_product`` on FITS files and the stpipe Step on RampModels.
+"""JWST readout arrangements and reference pixels through the public product
+paths: the command line's ``process_product`` on FITS files and the stpipe Step on RampModels.
 
 - A NIRSpec IRS2 ramp (reference samples interleaved with the rows): every
   science pixel within 1 DN of the truth, every reference sample and the
   reference border bit for bit, the Step COMPLETE, and both paths identical.
-- An IRS2 frame whose layout cannot be placed: refused in one line naming the
+- An IRS2 frame whose arrangement cannot be placed: refused in one line naming the
   file, by both paths.
 - A RampModel without ``pixeldq``/``groupdq`` (as the JWST pipeline's own test
   fixtures make them): corrected as all good.
 - MIRI's 4 + 4 reference columns, with no DQ flag: left as they are.
 
 These run the product plan (``ipc_taichi.products``) together with
-``ipc_taichi.products.layouts``.
+``ipc_taichi.products.arrangement``.
 """
 
 import numpy as np
@@ -137,7 +137,7 @@ WHY = ("an IRS2 frame (NRSIRS2) of 3200x64 pixels, not the full frame of 3200x20
        "samples cannot be placed; refused")
 
 
-def test_irs2_layout_that_cannot_be_placed_is_refused(cpu, tmp_path):
+def test_irs2_arrangement_that_cannot_be_placed_is_refused(cpu, tmp_path):
     model, src = _irs2_subarray(tmp_path)
     dst = tmp_path / "out.fits"
     with pytest.raises(IPCInputError) as err:
@@ -182,7 +182,7 @@ def test_ramp_model_without_dq_arrays(cpu):
 
 
 def test_miri_reference_columns_untouched(cpu, tmp_path):
-    """No DQ flag marks them: the layout does (columns 1-4 and 1029-1032)."""
+    """No DQ flag marks them: the science region does (columns 1-4 and 1029-1032)."""
     model = _fixture_ramp("MIRI", (1024, 1032))
     model.meta.instrument.detector = "MIRIMAGE"
     model.pixeldq = np.zeros((1024, 1032), np.uint32)

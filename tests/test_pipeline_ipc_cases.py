@@ -7,7 +7,7 @@ with the subarray keywords of a MIRI and a NIRCam full frame and subarray, and n
 ``pixeldq``/``groupdq`` (all good). What agrees:
 
 - the reference pixels of each frame (``get_num_ref_pixels``: bottom, top, left,
-  right) are the plan's layout, and they are never changed;
+  right) are the plan's science region, and they are never changed;
 - the pipeline convolves the science region, zero-padded, with a deconvolution
   kernel; for a constant symmetric coupling ``a`` that kernel is, to first order,
   ``1 + 4a`` at the centre and ``-a`` on the four neighbours, and this Step's
@@ -58,16 +58,16 @@ def _model(name, ngroups=2):
 @pytest.mark.parametrize("name", list(CASES))
 def test_get_num_ref_pixels(name):
     """The pipeline's ``test_get_num_ref_pixels``: the same counts, from the
-    plan's layout (the pipeline's own function agrees on the same model)."""
+    plan's science region (the pipeline's own function agrees on the same model)."""
     model = _model(name, ngroups=1)
     expected = CASES[name][3]
     assert ipc_corr.get_num_ref_pixels(model) == expected
     plan, flags = plan_model(model, CouplingModel.resolve("constant:0.005"),
                              ProductOptions(gain=1.0))
     assert flags == []  # no pixeldq, groupdq: all good (before: a bare TypeError)
-    layout = plan.arrays[0].layout
-    assert layout.widths == tuple(expected)
-    assert layout.beyond == "reference" and plan.arrays[0].model.edge == "zero"
+    region = plan.arrays[0].science_region
+    assert region.widths == tuple(expected)
+    assert region.beyond == "reference" and plan.arrays[0].model.edge == "zero"
 
 
 def _kernel():

@@ -218,10 +218,10 @@ def test_primary_geometry_applies_when_it_describes_the_array():
     jwst = missions.recognise(fits.Header({"TELESCOP": "JWST", "INSTRUME": "NIRCAM"}))
     product = {"SUBSTRT1": 1, "SUBSTRT2": 1, "SUBSIZE1": 64, "SUBSIZE2": 32}.get
     facts = plan.ArrayFacts(1, "SCI", "f[SCI]", (32, 64), lambda k: None, product)
-    layout = plan.layout_of((32, 64), jwst, facts)
-    assert layout.widths == (4, 0, 4, 0) and layout.beyond == "reference"
+    region = plan.science_region_of((32, 64), jwst, facts)
+    assert region.widths == (4, 0, 4, 0) and region.beyond == "reference"
     other = plan.ArrayFacts(1, "SCI", "f[SCI]", (20, 40), lambda k: None, product)
-    assert plan.layout_of((20, 40), jwst, other).widths == (0, 0, 0, 0)
+    assert plan.science_region_of((20, 40), jwst, other).widths == (0, 0, 0, 0)
 
 
 # --- the edge, decided once
@@ -231,12 +231,12 @@ def test_edge_of_the_frame():
     model = CouplingModel.resolve("constant:0.006")  # asks for 'zero' (the default)
     jwst = missions.recognise(fits.Header({"TELESCOP": "JWST", "INSTRUME": "NIRCAM"}))
     plain = missions.recognise(fits.Header())
-    whole = plan.layout_of((16, 16), jwst)
+    whole = plan.science_region_of((16, 16), jwst)
     assert whole.beyond == "pixels"
     assert plan.edge_of(model, None, whole)[0].edge == "isolated"
     assert plan.edge_of(model, "zero", whole)[0].edge == "zero"  # asked for
-    assert plan.edge_of(model, None, plan.layout_of((16, 16), plain))[0].edge == "zero"
-    border = plan.layout_of((16, 16), jwst, refpix=2)
+    assert plan.edge_of(model, None, plan.science_region_of((16, 16), plain))[0].edge == "zero"
+    border = plan.science_region_of((16, 16), jwst, refpix=2)
     assert plan.edge_of(model, "isolated", border) == (
         CouplingModel(model.law, model.geometry, "zero"),
         "reference pixels (--refpix 2): zero-signal neighbours")
@@ -247,13 +247,13 @@ def test_edge_of_the_frame():
 
 def test_roman_conventions_live_in_missions():
     roman = missions.roman_mission()
-    science = plan.layout_of(missions.ROMAN["science_area"], roman,
-                             plan.ArrayFacts(0, "data", "r[data]", (4088, 4088)))
+    science = plan.science_region_of(missions.ROMAN["science_area"], roman,
+                                     plan.ArrayFacts(0, "data", "r[data]", (4088, 4088)))
     assert science.beyond == "reference" and science.widths == (0, 0, 0, 0)
     model = CouplingModel.resolve("constant:0.006", edge="isolated")
     assert plan.edge_of(model, None, science)[0].edge == "zero"
-    full = plan.layout_of(missions.ROMAN["full_frame"], roman,
-                          plan.ArrayFacts(0, "data", "r[data]", (2, 4096, 4096)))
+    full = plan.science_region_of(missions.ROMAN["full_frame"], roman,
+                                  plan.ArrayFacts(0, "data", "r[data]", (2, 4096, 4096)))
     assert full.widths == (4, 4, 4, 4)
     keys = missions.roman_keywords("ImageModel", {"exposure": {
         "effective_exposure_time": -999999.0, "exposure_time": 139.8}})

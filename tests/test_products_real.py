@@ -1,6 +1,6 @@
 """Files shaped like the real instrument products of issue 18, generated here.
 
-Each file copies the layout of a real product (HDUs, keywords, units, DQ
+Each file copies the structure of a real product (HDUs, keywords, units, DQ
 conventions) at a small size: a WFC3/IR MULTIACCUM ``_ima`` subarray (four
 reads and a zeroth read, 5-pixel reference border, ELECTRONS/S, SAMPTIME per
 read, HST DQ bits), a JWST superbias, a tile-compressed product, a LUCI2-like

@@ -183,7 +183,7 @@ def test_correcting_twice_warns(cli, tmp_path, rng):
 
 
 @pytest.mark.parametrize("args, message", [
-    (["--gain", "2"], "a gain was given"),
+    (["--gain", "2", "--bunit", "electron"], "a gain was given"),
     (["--output-dtype", "float32", "--output", "x.fits.gz"], "uncompressed"),
 ])
 def test_option_mistakes(cli, tmp_path, rng, args, message):

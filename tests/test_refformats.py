@@ -200,8 +200,8 @@ def test_a_uniform_4d_file_gives_no_map(tmp_path):
     assert coupled == pytest.approx(0.01, rel=20 * 0.01 ** 2)  # the inverse's cut
 
 
-def test_romanimpreprocess_fixture_layout_is_read(tmp_path):
-    """Their test fixture's layout: ``{"roman": {"data": K, "dq": ...}}``, no meta,
+def test_romanimpreprocess_fixture_structure_is_read(tmp_path):
+    """Their test fixture's structure: ``{"roman": {"data": K, "dq": ...}}``, no meta,
     with the kernels leaving the frame zeroed; a weaker patch is found."""
     n = 24
     k = np.zeros((3, 3, n, n), dtype=np.float32)

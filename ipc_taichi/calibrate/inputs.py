@@ -8,8 +8,8 @@ electrons and a boolean mask of the same shape (DQ bits, NaN, the reference
 border), and says in :attr:`ChargeFrames.meta` what the file is and how its
 numbers became electrons.
 
-**Layout** (``meta["layout"]`` in {"ramp", "frames"}, with
-``meta["layout_reason"]``, one sentence):
+**Ramp or frames** (``meta["stack"]`` in {"ramp", "frames"}, with
+``meta["stack_reason"]``, one sentence):
 
 - a 4-D science array is ramps, ``(nints, ngroups, ny, nx)``;
 - a 2-D array is one frame;
@@ -28,16 +28,16 @@ numbers became electrons.
   test unless the JWST keywords confirm a ramp (``NGROUPS`` equal to the
   number of reads): for hot pixels the difference does not matter.
 
-**Units, gain, layout and DQ** (:func:`plan_charge`): decided by the product
+**Units, gain, science region and DQ** (:func:`plan_charge`): decided by the product
 plan, as for ``decouple`` (:func:`ipc_taichi.products.plan.plan_array`:
-``bunit`` overrides BUNIT; DN need a gain, given or the GAIN keyword; a gain
-given for data in electrons is refused, in the same words), the pixels left
-out by :func:`ipc_taichi.products.conventions.untrusted` with the bits of
-:func:`ipc_taichi.products.plan.dq_bits_of`. Calibrate's own readings: rates
-are refused (it needs accumulated charge), and a file without units is DN
-when a gain is given or the file has a GAIN keyword (``decouple`` takes it
-as electrons), electrons otherwise. Each case is said in
-``meta["units_note"]``; never silent.
+``bunit`` overrides BUNIT; a file without units is DN when a gain is given
+or the file has a GAIN keyword, electrons otherwise,
+:func:`ipc_taichi.products.plan.units_of`; DN need a gain, given or the GAIN
+keyword; a gain given for data in electrons is refused, in the same words),
+the pixels left out by :func:`ipc_taichi.products.conventions.untrusted`
+with the bits of :func:`ipc_taichi.products.plan.dq_bits_of`. Calibrate's own
+reading: rates are refused (it needs accumulated charge). Each case is said
+in ``meta["units_note"]``; never silent.
 
 **Refusals** (:class:`~ipc_taichi.errors.IPCInputError`, one line naming the
 file and HDU): bias products (:func:`ipc_taichi.products.missions.check_not_bias`,
@@ -91,7 +91,7 @@ _SAMPLE_PIXELS = 100_000
 class ChargeFrames:
     """Charge and mask of one input file.
 
-    ``meta`` keys: ``layout`` ("ramp" or "frames"), ``layout_reason`` (one
+    ``meta`` keys: ``stack`` ("ramp" or "frames"), ``stack_reason`` (one
     sentence), ``nints``, ``ngroups`` (None for frames), ``nframes`` (reads or
     frames per integration), ``units_note`` (one sentence), ``gain`` (e-/DN
     used, the median of a gain image; None for electrons), ``gain_source``
@@ -124,7 +124,7 @@ def read_frames(path, hdu=None, gain=None, dq_bits=DEFAULT_DQ_BITS, refpix=None,
     Parameters
     ----------
     path : str
-        FITS (JWST layout or plain) or Roman ASDF.
+        FITS (a JWST product or plain) or Roman ASDF.
     hdu : int, str or None
         Science HDU (FITS; default SCI, else the first image HDU).
     gain : float, str or None
@@ -153,7 +153,7 @@ def read_frames(path, hdu=None, gain=None, dq_bits=DEFAULT_DQ_BITS, refpix=None,
     else:
         frames, ndim, keys, saturated = _read_fits(path, hdu, gain, dq_bits, refpix, bunit)
     frames.meta["role"] = role
-    frames.meta.update(_layout(frames, ndim, keys))
+    frames.meta.update(_stack(frames, ndim, keys))
     _check_usable(frames, saturated, role)
     return frames
 
@@ -171,15 +171,15 @@ def plan_charge(facts, mission, gain=None, bunit=None, refpix=None, source="BUNI
     """The product plan of one science array, made as ``decouple`` makes it,
     and the sentence that says how its numbers became electrons.
 
-    Units, gain and layout are :func:`ipc_taichi.products.plan.plan_array`'s
-    (the rule of ``decouple``: DN need a gain, given or the GAIN keyword; a
-    gain given for data in electrons is refused; a GAIN keyword that is not
-    a number, or a gain image with no usable pixel, is refused naming it).
-    Calibrate adds two readings of its own: rates are refused (it needs
-    accumulated charge), and a file without units is taken as DN when a gain
-    is known (given, or its GAIN keyword; a lab file's habit), where
-    ``decouple`` takes it as electrons. The frames are measured as stored
-    (``NCOADDS`` is not applied: a coadded frame's noise is its sum's).
+    Units, gain and the science region are :func:`ipc_taichi.products.plan.plan_array`'s
+    (the rule of ``decouple``, :func:`ipc_taichi.products.plan.units_of`: a
+    file without units is DN when a gain is known, given or its GAIN
+    keyword, else electrons; DN need a gain; a gain given for data in
+    electrons is refused; a GAIN keyword that is not a number, or a gain
+    image with no usable pixel, is refused naming it). Calibrate adds one
+    reading of its own: rates are refused (it needs accumulated charge). The
+    frames are measured as stored (``NCOADDS`` is not applied: a coadded
+    frame's noise is its sum's).
 
     Parameters
     ----------
@@ -198,7 +198,7 @@ def plan_charge(facts, mission, gain=None, bunit=None, refpix=None, source="BUNI
     Returns
     -------
     arrays : ArrayPlan
-        ``scale`` (electrons per data unit), ``units_text``, ``layout``.
+        ``scale`` (electrons per data unit), ``units_text``, ``science_region``.
     info : dict
         ``units_note`` (one sentence), ``gain`` (float: e-/DN, the median of
         a gain image; None for electrons), ``gain_source`` ("given", "GAIN
@@ -214,19 +214,18 @@ def plan_charge(facts, mission, gain=None, bunit=None, refpix=None, source="BUNI
     said = "bunit" if bunit is not None else source
     gain_source = "given" if gain is not None else (
         "GAIN keyword" if facts.keyword("GAIN") is not None else None)
-    asked = bunit
-    if text is not None and str(text).strip():
-        head = f"{said} {str(text).strip()!r}"
-    elif gain_source is not None:
-        head, asked = f"no {source}: taken as DN", "DN"
-    else:
-        head = f"no {source} and no gain: taken as electrons"
-    units = cv.parse_units(asked if asked is not None else text, facts.label, said)
+    options = ProductOptions.from_kwargs(gain=gain, bunit=bunit, refpix=refpix, pedestal="none",
+                                         coadds=1)
+    units = plan.units_of(facts, mission, options, said)  # decouple's rule, no-BUNIT case too
     if units.rate:
         raise IPCInputError(f"{facts.label}: a rate ({units.text}); calibrate needs darks, "
                             "ramps or flats of accumulated charge (DN or electrons)")
-    options = ProductOptions.from_kwargs(gain=gain, bunit=asked, refpix=refpix, pedestal="none",
-                                         coadds=1)
+    if text is not None and str(text).strip():
+        head = f"{said} {str(text).strip()!r}"
+    elif units.needs_gain:
+        head = f"no {source}: taken as DN"
+    else:
+        head = f"no {source} and no gain: taken as electrons"
     arrays = plan.plan_array(facts, mission, CouplingModel.resolve(), options)
     if not units.needs_gain:
         note = head if head.startswith("no ") else f"{head}: electrons"
@@ -275,15 +274,15 @@ def _read_fits(path, hdu, gain, dq_bits, refpix, bunit):
         mission = missions.recognise(hdul[0].header, hdul[index].header, hdul)
         arrays, info = plan_charge(array_facts(path, hdul, index, label), mission, gain, bunit,
                                    refpix)
-        layout, scale = arrays.layout, arrays.scale
-        if not layout.arrangement.identity:
-            raise IPCInputError(f"{label}: {layout.arrangement.describe()}: calibrate reads "
+        region, scale = arrays.science_region, arrays.scale
+        if not region.arrangement.identity:
+            raise IPCInputError(f"{label}: {region.arrangement.describe()}: calibrate reads "
                                 "contiguous frames; give the products after the refpix step "
                                 "(its reference samples removed)")
         data = np.asarray(read_array(path, hdul, index), dtype=np.float64) * scale
         bits, lacking = plan.dq_bits_of(dq_bits, mission)
         flags = [read_array(path, hdul, k) for k in flag_hdus(hdul, index, shape, path)]
-        mask = _untrusted(flags, bits, shape, layout, scale)
+        mask = _untrusted(flags, bits, shape, region, scale)
         saturated = _untrusted(flags, bits & mission.flag("SATURATED"), shape)
         saturate = keyword(hdul, index, "SATURATE")
         keys = {k: keyword(hdul, index, k) for k in ("NGROUPS", "NINTS", "READPATT")}
@@ -301,17 +300,18 @@ def _read_fits(path, hdu, gain, dq_bits, refpix, bunit):
         mask = mask | mask[:, :1]
         level = None
     info.update(saturation=level, first_read_subtracted=raw, dq_note=_dq_note(lacking, path))
-    frames = _finish(path, label, data, mask, layout.region, arrays.units_text, info)
+    frames = _finish(path, label, data, mask, region.slices, arrays.units_text, info)
     return frames, len(shape), keys, (_as4d(saturated), " or ".join(said))
 
 
-def _untrusted(flags, bits, shape, layout=None, scale=None):
+def _untrusted(flags, bits, shape, region=None, scale=None):
     """The pixels ``decouple`` leaves out
     (:func:`ipc_taichi.products.conventions.untrusted`: the DQ ``bits`` of
-    ``flags``, the reference-flagged pixels inside the science region of
-    ``layout``, the pixels of a gain image ``scale`` without a usable gain),
+    ``flags``, the reference-flagged pixels inside ``region``, a
+    :class:`~ipc_taichi.products.plan.ScienceRegion`, the pixels of a gain
+    image ``scale`` without a usable gain),
     as an array of ``shape`` (all False when none)."""
-    mask = cv.untrusted(flags, bits, shape, None if layout is None else layout.inside_mask(),
+    mask = cv.untrusted(flags, bits, shape, None if region is None else region.inside_mask(),
                         gain=scale)
     return np.zeros(shape, dtype=bool) if mask is None else mask
 
@@ -354,15 +354,15 @@ def _read_asdf(path, gain, dq_bits, refpix, bunit):
         arrays, info = plan_charge(facts, mission, gain, bunit, refpix, source="Roman schema")
         bits, _ = plan.dq_bits_of(dq_bits, mission)
     data = data * arrays.scale
-    mask = _untrusted(flags, bits, data.shape, arrays.layout, arrays.scale)
+    mask = _untrusted(flags, bits, data.shape, arrays.science_region, arrays.scale)
     info.update(saturation=None, first_read_subtracted=False, dq_note=None)
-    frames = _finish(path, label, data, mask, arrays.layout.region, arrays.units_text, info)
+    frames = _finish(path, label, data, mask, arrays.region, arrays.units_text, info)
     return frames, data.ndim, {"hdu": "data"}
 
 
 def _reference(flags):
     """``() -> the REFERENCE_PIXEL flags of the first DQ array's first frame``
-    (a Roman model's, as :func:`ipc_taichi.products.plan.layout_of` asks)."""
+    (a Roman model's, as :func:`ipc_taichi.products.plan.science_region_of` asks)."""
     def reference():
         if not flags:
             return None
@@ -382,7 +382,7 @@ def _finish(path, label, data, mask, region, units_text, meta):
     return ChargeFrames(path, label, _as4d(data), _as4d(mask), units_text, meta)
 
 
-# ---- layout --------------------------------------------------------------------------
+# ---- ramp or frames ------------------------------------------------------------------
 
 def _sample(cube):
     """Rows of ``cube`` (n, ny, nx), every k-th, about :data:`_SAMPLE_PIXELS` per frame."""
@@ -450,12 +450,12 @@ def _keyword_ramp(keys, n):
     return f"; NGROUPS = {n}" + (f", READPATT {str(patt).strip()}" if patt else "")
 
 
-def _layout(frames, ndim, keys):
-    """``layout``, ``layout_reason``, ``nints``, ``ngroups``, ``nframes``."""
+def _stack(frames, ndim, keys):
+    """``stack``, ``stack_reason``, ``nints``, ``ngroups``, ``nframes``."""
     nints, n = frames.data.shape[:2]
     name = keys.get("hdu", "")
     if ndim == 2 or (ndim == 3 and n == 1):
-        return {"layout": "frames", "layout_reason": f"{ndim}-D {name}: one frame", "nints": 1,
+        return {"stack": "frames", "stack_reason": f"{ndim}-D {name}: one frame", "nints": 1,
                 "ngroups": None, "nframes": 1}
     rise = cube_rises(frames.data[0])
     change = f"{_e(rise['first'])} -> {_e(rise['last'])} e-"
@@ -465,7 +465,7 @@ def _layout(frames, ndim, keys):
         verb = "rises" if rise["rises"] else "changes"
         reason = (f"4-D {name} ({nints} integrations x {n} groups; the mean of the first "
                   f"{verb} {change}){raw}")
-        return {"layout": "ramp", "layout_reason": reason, "nints": nints, "ngroups": n,
+        return {"stack": "ramp", "stack_reason": reason, "nints": nints, "ngroups": n,
                 "nframes": n}
     confirmed = _keyword_ramp(keys, n)
     if rise["rises"]:
@@ -478,9 +478,9 @@ def _layout(frames, ndim, keys):
         why = ("it falls between frames" if rise["falls"] else
                f"a change within {RISE_SIGMAS:g} x the noise of a frame difference, "
                f"{rise['noise']:.3g} e-")
-        return {"layout": "frames", "nints": 1, "ngroups": None, "nframes": n,
-                "layout_reason": f"3-D stack of {n} frames at one level (mean {change}: {why})"}
-    return {"layout": "ramp", "layout_reason": reason, "nints": 1, "ngroups": n, "nframes": n}
+        return {"stack": "frames", "nints": 1, "ngroups": None, "nframes": n,
+                "stack_reason": f"3-D stack of {n} frames at one level (mean {change}: {why})"}
+    return {"stack": "ramp", "stack_reason": reason, "nints": 1, "ngroups": n, "nframes": n}
 
 
 # ---- refusals after reading ----------------------------------------------------------
@@ -496,7 +496,7 @@ def _check_usable(frames, saturated, role):
     need = min(2, mask.shape[1])
     if ((~mask & ~sat).sum(axis=1) >= need).any():
         return
-    what = f"{role} {frames.meta['layout']}" if role else frames.meta["layout"]
+    what = f"{role} {frames.meta['stack']}" if role else frames.meta["stack"]
     if ((~(mask & ~sat)).sum(axis=1) >= need).any():  # usable but for saturation
         raise IPCInputError(f"{frames.label}: every read of this {what} is saturated "
                             f"({by_what}): no pixel has {need} unsaturated read(s) to measure; "

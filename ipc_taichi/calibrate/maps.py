@@ -135,7 +135,7 @@ def _differences(f):
     frames), one at a time as ``(image with NaN masked, integration)``, each
     pixel's mean over the images taken out (scaled to keep the variance)."""
     d, m = f.data, f.mask
-    ramp = f.meta.get("layout") == "ramp" and d.shape[1] > 1
+    ramp = f.meta.get("stack") == "ramp" and d.shape[1] > 1
 
     def images():
         for i in range(d.shape[0]):
@@ -165,7 +165,7 @@ def read_noise_covariance(dark_frames, shape):
     sums = NoiseSums(shape)
     used = False
     for f in dark_frames:
-        if f.shape2d != tuple(shape) or f.data.shape[1] < 3 or f.meta.get("layout") != "ramp":
+        if f.shape2d != tuple(shape) or f.data.shape[1] < 3 or f.meta.get("stack") != "ramp":
             continue
         rise = np.where(f.mask[:, -1] | f.mask[:, 0], np.nan, f.data[:, -1] - f.data[:, 0])
         n = np.sum(np.isfinite(rise), axis=0)

@@ -60,8 +60,8 @@ class Inputs:
 
 
 def _input_entry(f, role):
-    return {"file": f.label, "role": role, "layout": f.meta.get("layout"),
-            "layout_reason": f.meta.get("layout_reason"), "units": f.units,
+    return {"file": f.label, "role": role, "stack": f.meta.get("stack"),
+            "stack_reason": f.meta.get("stack_reason"), "units": f.units,
             "units_note": f.meta.get("units_note"), "dq_note": f.meta.get("dq_note"),
             "shape": list(f.data.shape)}
 

@@ -1,7 +1,7 @@
 """The calibration report (JSON), its console summary and its figures.
 
 The report holds everything measured and how the law was chosen, so a reader
-can check the model file against the data: the inputs as read (layout,
+can check the model file against the data: the inputs as read (ramp or frames,
 units, gain), the gain measured by flat ramps, classical non-linearity, the
 brighter-fatter kernel, the evidence on non-linear IPC, the hot-pixel bins
 (alpha(S, 0) per direction), the flat levels (alpha(S, S) per axis with
@@ -65,7 +65,7 @@ def summary_lines(document, model):
     the held-out check, what was assumed or not measured."""
     lines = []
     for item in document.get("inputs", []):
-        what = "; ".join(x for x in (item.get("layout_reason"), item.get("units_note"),
+        what = "; ".join(x for x in (item.get("stack_reason"), item.get("units_note"),
                                      item.get("dq_note")) if x)
         lines.append(f"input ({item['role']}): {item['file']}: {what}")
     g = document.get("gain") or {}

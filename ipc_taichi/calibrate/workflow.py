@@ -147,8 +147,8 @@ class _Flats:
     def __init__(self, flat_files, read_noise, not_measured, notes, collection_steps=None):
         self.read_noise = read_noise
         self.sets = []
-        ramp_files = [f for f in flat_files if f.meta.get("layout") == "ramp"]
-        self.frame_files = [f for f in flat_files if f.meta.get("layout") != "ramp"]
+        ramp_files = [f for f in flat_files if f.meta.get("stack") == "ramp"]
+        self.frame_files = [f for f in flat_files if f.meta.get("stack") != "ramp"]
         for group in _by_illumination(ramp_files):
             data = np.concatenate([f.data for f in group])
             mask = np.concatenate([f.mask for f in group])
@@ -401,7 +401,8 @@ def calibrate(darks=(), flats=(), reference=None, output=None, *, report_path=No
     gain : float or str, optional
         e-/DN for inputs in DN (default: each file's GAIN keyword), every
         input's; refused for an input in electrons, as ``decouple`` refuses
-        it. A file without BUNIT is taken as DN when a gain is known (said).
+        it. A file without BUNIT is taken as DN when a gain is known, else as
+        electrons (the product plan's rule, decouple's too; said).
     bunit : str, optional
         Units of the inputs, overriding their BUNIT.
     hdu : optional

@@ -87,7 +87,7 @@ def _add_product_arguments(p):
                         "the law sees the charge of one")
     g.add_argument("--bunit", default=None,
                    help="units of the data, overriding BUNIT: electron, DN, DN/s, electron/s "
-                        "(no BUNIT: electrons, the law's unit)")
+                        "(no BUNIT: DN when a gain is known, --gain or GAIN, else electrons)")
     g.add_argument("--output-dtype", choices=("same", "float32", "float64"), default="same",
                    help="science dtype out (default same: float stays float, integer becomes "
                         "float64)")

@@ -61,7 +61,7 @@ from .fitsfile import (
 )
 from .noise_arrays import NOISE_ARRAYS, noise_of
 from .options import ProductOptions, resolve_model
-from .plan import ArrayFacts, Zeroth, plan_product
+from .plan import ArrayFacts, Zeroth, plan_product, units_in
 from .provenance import Provenance
 
 __all__ = ["process_fits", "array_facts"]
@@ -185,8 +185,8 @@ def _plan(input_path, hdul, model, options, operation="decouple"):
 def _zeroth_charge(path, hdul, zeroth, gain, options):
     """The zeroth read in electrons (its data times the gain, when in DN)."""
     label = f"{path}[{hdu_label(hdul, zeroth)}]"
-    units = cv.parse_units(options.bunit if options.bunit is not None
-                           else keyword(hdul, zeroth, "BUNIT"), label)
+    units = units_in(options.bunit if options.bunit is not None
+                     else keyword(hdul, zeroth, "BUNIT"), gain is not None, label)
     units = cv.Units(units.kind.replace("_rate", ""), units.text)
     scale, _ = cv.charge_scale(units, gain, None, label)
     charge = np.asarray(read_array(path, hdul, zeroth), dtype=np.float64) * scale

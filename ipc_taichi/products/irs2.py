@@ -26,7 +26,7 @@ removed from the *contiguous* science image (:func:`science_image`), and the
 result put back with every reference sample exactly as it came
 (:func:`interleave`). The facts are those of the JWST pipeline
 (``jwst.ipc.x_irs2``, ``jwst.refpix.irs2_subtract_reference``,
-``jwst.lib.pipe_utils.is_irs2``); layouts it does not cover (odd n, n that
+``jwst.lib.pipe_utils.is_irs2``); arrangements it does not cover (odd n, n that
 does not divide 512, other shapes, other detectors) are refused in one line
 (:class:`~ipc_taichi.errors.IPCInputError`), never corrected as if contiguous.
 
@@ -195,7 +195,7 @@ def irs2_geometry(primary, science, shape, label):
     Raises
     ------
     IPCInputError
-        An interleaved frame whose layout is not verified here (one line).
+        An interleaved frame whose arrangement is not verified here (one line).
     """
     def get(key):
         return header_value(primary, science, key)

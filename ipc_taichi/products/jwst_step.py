@@ -39,7 +39,7 @@ frame decides what it gets (``zero`` beside reference pixels, else what was
 asked, else ``isolated`` for a subarray inside the detector). A rate or
 rateints model is corrected too (DN/s and its integration time). A model
 without ``pixeldq``/``groupdq`` is all good. An IRS2 ramp is corrected in
-its contiguous image (:mod:`~ipc_taichi.products.layouts`), its reference
+its contiguous image (:mod:`~ipc_taichi.products.arrangement`), its reference
 samples as they came; ``err`` and ``var_*`` are propagated as the command
 line propagates ``ERR`` and ``VAR_*`` (``noise="keep"`` leaves them).
 """
@@ -157,7 +157,7 @@ def correct_model(datamodel, coupling, options, superbias=None):
     data, flags = science(stored), [science(f) for f in flags]
     superbias = None if superbias is None else science(superbias)
     work = data if superbias is None else data - superbias
-    mask = cv.untrusted(flags, plan.bits, data.shape, p.layout.inside_mask(), values=work,
+    mask = cv.untrusted(flags, plan.bits, data.shape, p.science_region.inside_mask(), values=work,
                         saturation=options.saturation)
     came = held(datamodel.instance.get, stored.shape)
     propagate, noise_text = noise_of("decouple", options, list(came),

@@ -11,7 +11,7 @@ conventions from it (``docs/products.md`` says the same in words):
   Such a file is also a *detector product*: the edge rule is chosen from it.
   JWST, HST and Roman products get their observatory's conventions below.
 - **Reference borders** (:func:`reference_border`, what
-  :func:`ipc_taichi.products.plan.layout_of` falls back on without
+  :func:`ipc_taichi.products.plan.science_region_of` falls back on without
   ``REFERENCE_PIXEL`` flags): JWST near-IR 4 pixels on each side of the
   2048x2048 detector, MIRI 4 columns on each side of its 1032-column
   detector (no rows), as the JWST ``ipc`` step's ``get_num_ref_pixels``

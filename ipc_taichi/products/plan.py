@@ -5,7 +5,7 @@ Every path that corrects a product asks this module, in one sequence
 Roman ASDF (:func:`ipc_taichi.products.roman.process_asdf`), the JWST Step
 (:func:`ipc_taichi.products.jwst_step.correct_model`) and calibrate's reader
 (:mod:`ipc_taichi.calibrate.inputs`, which asks :func:`dq_bits_of` and
-:func:`layout_of`). A reader only says what its file holds, as one
+:func:`science_region_of`). A reader only says what its file holds, as one
 :class:`ArrayFacts` per science array (its shape, a keyword look-up of its
 own header and of its product's, its ``REFERENCE_PIXEL`` flags); the
 decisions, in this order, are made here:
@@ -14,13 +14,15 @@ decisions, in this order, are made here:
    when it has one, else its mission's
    (:mod:`~ipc_taichi.products.missions`); a name the ``DQ_DEF`` lacks is
    said in one line and never taken from another table.
-2. **Units and gain**: ``--bunit`` or ``BUNIT`` (a Roman product's kind);
+2. **Units and gain** (:func:`units_of`): ``--bunit`` or ``BUNIT`` (a Roman
+   product's kind); with neither, DN when a gain is known (``--gain`` or a
+   ``GAIN`` keyword), else electrons: one rule for decouple and calibrate;
    ``--gain`` or ``GAIN``; for a rate, the integration time (``--exptime``,
    else the mission's time keywords); ``--coadds`` or ``NCOADDS``/``NDIT``;
    hence electrons per data unit
    (:func:`~ipc_taichi.products.conventions.charge_scale`).
-3. **Layout** (:func:`layout_of`): how the frame is read out (its
-   :class:`~ipc_taichi.products.layouts.Arrangement`: contiguous, or NIRSpec
+3. **Science region** (:func:`science_region_of`): how the frame is read out (its
+   :class:`~ipc_taichi.products.arrangement.Arrangement`: contiguous, or NIRSpec
    IRS2 with reference samples interleaved), then the science region inside
    the reference pixels of the contiguous image (``--refpix``, else the
    ``REFERENCE_PIXEL`` flags, else the observatory's convention,
@@ -47,14 +49,15 @@ import numpy as np
 
 from ..errors import IPCInputError
 from ..model import CouplingModel
+from . import arrangement as arrangements
 from . import conventions as cv
-from . import layouts, missions
+from . import missions
 from .checks import check_gain_image, check_pedestal, header_gain
 from .gain import read_frame, read_gain
 
-__all__ = ["ArrayFacts", "ArrayPlan", "Layout", "ProductPlan", "Zeroth", "plan_product",
-           "plan_array", "dq_bits_of", "say_lacking",
-           "arrangement_of", "layout_of", "edge_of", "BEYOND"]
+__all__ = ["ArrayFacts", "ArrayPlan", "ScienceRegion", "ProductPlan", "Zeroth", "plan_product",
+           "plan_array", "units_of", "units_in", "dq_bits_of", "say_lacking",
+           "arrangement_of", "science_region_of", "edge_of", "BEYOND"]
 
 BEYOND = ("reference", "pixels", "unknown")
 """What lies beyond a science region's edge: reference pixels (zero-signal
@@ -116,7 +119,7 @@ class Zeroth:
 
 class _Header:
     """A keyword look-up (``key -> value or None``) as the mapping
-    :mod:`~ipc_taichi.products.layouts` reads."""
+    :mod:`~ipc_taichi.products.arrangement` reads."""
 
     def __init__(self, lookup):
         self.lookup = lookup
@@ -127,7 +130,7 @@ class _Header:
 
 
 @dataclass(frozen=True)
-class Layout:
+class ScienceRegion:
     """Where the science is in a frame.
 
     Attributes
@@ -135,21 +138,21 @@ class Layout:
     shape : (int, int)
         The contiguous image of the frame (:attr:`arrangement`'s
         ``science_shape``; the stored frame itself unless interleaved).
-    region : (slice, slice)
-        The science region inside the reference pixels.
+    slices : (slice, slice)
+        The science region inside the reference pixels, as the frame's slices.
     inside : ndarray of bool or None
-        Reference-flagged pixels inside ``region`` (treated as masked).
+        Reference-flagged pixels inside ``slices`` (treated as masked).
     beyond : str
         What lies beyond the region's edge (:data:`BEYOND`).
     source : str
-        Where the layout came from (one phrase).
+        Where the region came from (one phrase).
     arrangement : Arrangement
         How the stored frame holds that image
-        (:func:`~ipc_taichi.products.layouts.arrangement_of`).
+        (:func:`~ipc_taichi.products.arrangement.arrangement_of`).
     """
 
     shape: tuple
-    region: tuple
+    slices: tuple
     inside: object
     beyond: str
     source: str
@@ -158,7 +161,7 @@ class Layout:
     @property
     def widths(self):
         """Reference pixels outside the region: (bottom, top, left, right)."""
-        (ys, xs), (ny, nx) = self.region, self.shape
+        (ys, xs), (ny, nx) = self.slices, self.shape
         return ys.start, ny - ys.stop, xs.start, nx - xs.stop
 
     def inside_mask(self):
@@ -166,7 +169,7 @@ class Layout:
         if self.inside is None:
             return None
         full = np.zeros(self.shape, dtype=bool)
-        full[self.region] = self.inside
+        full[self.slices] = self.inside
         return full
 
 
@@ -187,8 +190,8 @@ class ArrayPlan:
     scale : float or ndarray
         Electrons per data unit, per exposure.
     coadds : int
-    layout : Layout
-        Its readout arrangement and science region.
+    science_region : ScienceRegion
+        Its science region and readout arrangement.
     model : CouplingModel
         The model with the edge rule the frame gets.
     edge_reason : str
@@ -208,7 +211,7 @@ class ArrayPlan:
     exptime: object
     scale: object
     coadds: int
-    layout: Layout
+    science_region: ScienceRegion
     model: object
     edge_reason: str
     pedestal: object = None
@@ -216,21 +219,21 @@ class ArrayPlan:
 
     @property
     def region(self):
-        return self.layout.region
+        return self.science_region.slices
 
     @property
     def inside(self):
-        return self.layout.inside
+        return self.science_region.inside
 
     @property
     def arrangement(self):
-        return self.layout.arrangement
+        return self.science_region.arrangement
 
     @property
     def science_shape(self):
         """The shape of the contiguous image(s) corrected (:attr:`shape` unless
         the frames are interleaved)."""
-        return tuple(self.shape[:-2]) + tuple(self.layout.shape)
+        return tuple(self.shape[:-2]) + tuple(self.science_region.shape)
 
     @property
     def frames(self):
@@ -261,7 +264,7 @@ def dq_bits_of(text, mission):
     alone: a name it lacks is not taken from the mission's (a NIRSpec dark's
     bit 2 is WARM, JWST's science bit 2 SATURATED) but returned in
     ``lacking`` for the caller to say. ``REFERENCE_PIXEL`` is never a bit
-    left out (reference pixels are the layout's).
+    left out (reference pixels are the science region's).
 
     Returns
     -------
@@ -305,15 +308,15 @@ def _open_edge(mission):
 
 def arrangement_of(facts, shape2d):
     """How the stored frame of ``facts`` is read out
-    (:func:`~ipc_taichi.products.layouts.arrangement_of`; contiguous when
+    (:func:`~ipc_taichi.products.arrangement.arrangement_of`; contiguous when
     nothing is known of it)."""
     if facts is None:
-        return layouts.Arrangement.contiguous(shape2d)
-    return layouts.arrangement_of(_Header(facts.product), _Header(facts.own),
+        return arrangements.Arrangement.contiguous(shape2d)
+    return arrangements.arrangement_of(_Header(facts.product), _Header(facts.own),
                                   tuple(facts.shape[:-2]) + tuple(shape2d), facts.label)
 
 
-def layout_of(shape2d, mission, facts=None, refpix=None):
+def science_region_of(shape2d, mission, facts=None, refpix=None):
     """How a frame is read out, its science region and what lies beyond its edge.
 
     First the frame's readout arrangement (:func:`arrangement_of`: an IRS2
@@ -332,7 +335,7 @@ def layout_of(shape2d, mission, facts=None, refpix=None):
 
     Returns
     -------
-    Layout
+    ScienceRegion
 
     Raises
     ------
@@ -346,23 +349,23 @@ def layout_of(shape2d, mission, facts=None, refpix=None):
     label = facts.label if facts is not None else "data"
     whole = (slice(0, shape2d[0]), slice(0, shape2d[1]))
 
-    def region_of(n=None, reference=None):
+    def slices_of(n=None, reference=None):
         try:
             return cv.science_region(shape2d, n, reference)
         except IPCInputError as exc:
             raise IPCInputError(f"{label}: {exc}") from None
 
     def made(region, inside, beyond, source):
-        return Layout(shape2d, region, inside, beyond, source, arrangement)
+        return ScienceRegion(shape2d, region, inside, beyond, source, arrangement)
 
     if refpix is not None:
-        region, _ = region_of(refpix)
+        region, _ = slices_of(refpix)
         beyond = "reference" if int(refpix) else _open_edge(mission)
         return made(region, None, beyond, f"--refpix {int(refpix)}")
     flagged = facts.reference() if facts is not None and facts.reference else None
     flagged = arrangement.to_science(flagged)
     if flagged is not None and flagged.any():
-        region, inside = region_of(None, flagged)
+        region, inside = slices_of(None, flagged)
         beyond = "reference" if region != whole else _open_edge(mission)
         return made(region, inside, beyond, "REFERENCE_PIXEL flags")
     border = None
@@ -378,11 +381,11 @@ def layout_of(shape2d, mission, facts=None, refpix=None):
         return made(whole, None, _open_edge(mission), "no reference pixels")
     if border.stored_apart:
         return made(whole, None, "reference", border.source)
-    region, _ = region_of(None, border.mask(shape2d))
+    region, _ = slices_of(None, border.mask(shape2d))
     return made(region, None, "reference", border.source)
 
 
-def edge_of(model, asked, layout):
+def edge_of(model, asked, science_region):
     """The model for a frame's science region, and why its edge rule.
 
     The model says which edge it asks for (``asked``: the rule the caller
@@ -404,11 +407,11 @@ def edge_of(model, asked, layout):
     model : CouplingModel
     reason : str
     """
-    if layout.beyond == "reference":
-        edge, reason = "zero", f"reference pixels ({layout.source}): zero-signal neighbours"
+    if science_region.beyond == "reference":
+        edge, reason = "zero", f"reference pixels ({science_region.source}): zero-signal neighbours"
     elif asked is not None:
         edge, reason = asked, "asked for (--edge)"
-    elif layout.beyond == "pixels":
+    elif science_region.beyond == "pixels":
         edge, reason = "isolated", "no reference border (cut-out or subarray)"
     else:
         edge, reason = model.edge, "default (plain image)"
@@ -417,15 +420,42 @@ def edge_of(model, asked, layout):
     return CouplingModel(model.law, model.geometry, edge, model.bonds), reason
 
 
-def _units(facts, mission, options):
-    source = "--bunit" if options.bunit is not None and mission.name == "Roman" else \
-        mission.units_source
-    units = cv.parse_units(options.bunit if options.bunit is not None
-                           else facts.keyword("BUNIT"), facts.label, source)
+def units_in(text, gain_known, label, source="BUNIT"):
+    """:class:`~ipc_taichi.products.conventions.Units` of a ``BUNIT`` value
+    ``text`` by the rule of :func:`units_of`: none given, DN when
+    ``gain_known``, else electrons (``source`` names the keyword)."""
+    if (text is None or not str(text).strip()) and gain_known:
+        return cv.Units("dn", f"DN (no {source}, a gain known)")
+    return cv.parse_units(text, label, source)
+
+
+def units_of(facts, mission, options, source=None):
+    """What the numbers of a science array are, by the one rule of every path
+    (decouple, the Step, calibrate).
+
+    ``options.bunit``, else the array's ``BUNIT`` (a Roman product's kind).
+    With neither, **DN when a gain is known** (``options.gain``, or a
+    ``GAIN`` keyword: a gain is written beside numbers in DN; a lab file's
+    habit, the solid-waffle simulator's), **else electrons**, the law's unit.
+    The DN so taken say so in their text (the HISTORY's, calibrate's note).
+    ``source`` names where the units come from in errors (default: the
+    mission's, ``--bunit`` for a Roman override).
+
+    Raises
+    ------
+    IPCInputError
+        Flux or unknown units; a gain given for data in electrons (one line
+        naming the array).
+    """
+    if source is None:
+        source = "--bunit" if options.bunit is not None and mission.name == "Roman" else \
+            mission.units_source
+    text = options.bunit if options.bunit is not None else facts.keyword("BUNIT")
+    known = options.gain is not None or facts.keyword("GAIN") is not None
+    units = units_in(text, known, facts.label, source)
     if options.gain is not None and not units.needs_gain:
         raise IPCInputError(f"{facts.label}: a gain was given but the data are in "
-                            f"{units.text or 'electrons (no BUNIT)'}; give --bunit DN or "
-                            "DN/s if they are not")
+                            f"{units.text}; give --bunit DN or DN/s if they are not")
     if facts.zeroth:  # a zeroth read holds the charge since reset, not a rate
         units = cv.Units(units.kind.replace("_rate", ""), units.text)
     return units
@@ -448,7 +478,7 @@ def _pedestal_option(options):
     return option, option not in ("none", "auto", False, 0, "0")
 
 
-def _pedestal(facts, options, gain, zeroth, layout):
+def _pedestal(facts, options, gain, zeroth, science_region):
     """The pedestal of one array, electrons (None when none), in the science
     image's shape (a pedestal image is given in the product's frame shape)."""
     option, given = _pedestal_option(options)
@@ -459,8 +489,8 @@ def _pedestal(facts, options, gain, zeroth, layout):
         frame = np.asarray(read_frame(option, shape2d, "pedestal"), dtype=np.float64)
         check_pedestal(frame, option, cv.PHYSICAL_RANGE)
         if frame.ndim == 2:
-            frame = layout.arrangement.to_science(frame)
-        return np.broadcast_to(frame, tuple(layout.shape))
+            frame = science_region.arrangement.to_science(frame)
+        return np.broadcast_to(frame, tuple(science_region.shape))
     if option == "auto" and zeroth is not None:
         if tuple(zeroth.shape2d) != shape2d:
             raise IPCInputError(f"{facts.label}: the zeroth read has another shape")
@@ -471,12 +501,12 @@ def _pedestal(facts, options, gain, zeroth, layout):
 def plan_array(facts, mission, model, options, zeroth=None):
     """The :class:`ArrayPlan` of one science array (steps 2-5 of the module's
     sequence). ``zeroth``: the product's zeroth read (:class:`Zeroth`) or None."""
-    layout = layout_of(facts.shape[-2:], mission, facts, options.refpix)
-    if options.tile and not layout.arrangement.identity:
+    where = science_region_of(facts.shape[-2:], mission, facts, options.refpix)
+    if options.tile and not where.arrangement.identity:
         raise IPCInputError(f"{facts.label}: an IRS2 frame (reference samples interleaved) is "
                             "corrected whole: run without --tile")
-    shape2d = layout.shape
-    units = _units(facts, mission, options)
+    shape2d = where.shape
+    units = units_of(facts, mission, options)
     gain = read_gain(options.gain if options.gain is not None else
                      header_gain(facts.keyword("GAIN"), facts.label), shape2d)
     check_gain_image(cv.unusable_gain(gain) if np.ndim(gain) == 2 else None, facts.label)
@@ -485,16 +515,16 @@ def plan_array(facts, mission, model, options, zeroth=None):
     scale, units_text = cv.charge_scale(units, gain, exptime, facts.label,
                                         time_source=mission.time_source, coadds=coadds,
                                         gain_source=mission.gain_source)
-    inner, reason = edge_of(model, options.edge, layout)
+    inner, reason = edge_of(model, options.edge, where)
     if model.bonds is not None:  # the science region's map (one of the whole frame is cut)
         inner = CouplingModel(inner.law, inner.geometry, inner.edge,
-                              inner.bonds.for_region(layout.region, shape2d, facts.label))
-    pedestal = _pedestal(facts, options, gain, zeroth, layout)
+                              inner.bonds.for_region(where.slices, shape2d, facts.label))
+    pedestal = _pedestal(facts, options, gain, zeroth, where)
     if pedestal is not None and options.tile:
         raise IPCInputError(f"{facts.label}: --tile cannot add the pedestal (zeroth read); run "
                             "without --tile, or give --pedestal none")
     return ArrayPlan(facts.index, facts.name, facts.label, tuple(facts.shape), units_text,
-                     exptime, scale, coadds, layout, inner, reason, pedestal,
+                     exptime, scale, coadds, where, inner, reason, pedestal,
                      len(facts.shape) > 2 and not units.rate and options.warm_start)
 
 

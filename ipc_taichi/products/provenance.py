@@ -116,7 +116,7 @@ class Provenance:
         self.hdus[array.index] = dict(
             name=array.name, label=array.label, region=array.region, units=array.units_text,
             exptime=float(array.exptime or 0.0), frames=array.frames,
-            nref=" ".join(str(n) for n in array.layout.widths),
+            nref=" ".join(str(n) for n in array.science_region.widths),
             arrangement="" if arrangement.identity else arrangement.note)
         self.infos[array.index] = [None] * array.frames
 

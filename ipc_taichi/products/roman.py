@@ -95,8 +95,8 @@ def process_asdf(input_path, output_path, operation="decouple", *, model=None, o
         plan = plan_product([_facts(dm, kind, label, data.shape, flags)], mission, model,
                             options)
         p, = plan.arrays
-        mask = cv.untrusted(flags, plan.bits, data.shape, p.layout.inside_mask(), values=data,
-                            saturation=options.saturation)
+        mask = cv.untrusted(flags, plan.bits, data.shape, p.science_region.inside_mask(),
+                            values=data, saturation=options.saturation)
         came = held(lambda name: dm[name] if name in dm else None, data.shape)
         propagate, noise_text = noise_of(operation, options, list(came),
                                          f"{input_path}[{next(iter(came), '')}]")

@@ -5,12 +5,14 @@ Both apply the same rules (:mod:`ipc_taichi.products.conventions`); the
 tiled result equals the whole-frame one (see :mod:`ipc_taichi.tiling`).
 """
 
+import warnings
+
 import numpy as np
 
-from ..errors import IPCInputError
 from ..interrupts import check_stop
 from ..tiling import decouple_blocks, tiles
 from . import conventions as cv
+from .checks import FrameLost, LostFrames
 from .correction import correct_frames, named
 from .fitsfile import RawImage, read_array
 
@@ -81,7 +83,9 @@ def whole(path, hdul, plan, out, flags, settings, record=None, noise=None):
 def tiled(path, hdul, plan, out, flags, settings, record=None):
     """Decouple every frame of the science HDU of ``plan`` tile by tile (read
     and write through memory maps; ``settings.tile``); ``record`` as for
-    :func:`whole`."""
+    :func:`whole`. A frame of a stack with nothing to decouple is left as it
+    came and said once, as :func:`whole` leaves it
+    (:class:`~ipc_taichi.products.checks.LostFrames`)."""
     record = record if record is not None else cv.Unphysical(settings.unphysical)
     region, label, tile = plan.region, plan.label, settings.tile
     source = RawImage(path, hdul, plan.index)
@@ -90,6 +94,7 @@ def tiled(path, hdul, plan, out, flags, settings, record=None):
     s = np.asarray(plan.scale, dtype=np.float64)
     infos = []
     leads = list(np.ndindex(*shape[:-2])) if len(shape) > 2 else [()]
+    lost = LostFrames(len(leads))
     # pixels outside the region (reference pixels) are copied unchanged
     for lead in leads:
         for ys, xs in _strips(shape[-2:]):
@@ -135,8 +140,13 @@ def tiled(path, hdul, plan, out, flags, settings, record=None):
             out[lead + full(core)] = np.where(read_mask(core), source[lead + full(core)],
                                               result)
 
-        _scan(flagged, factor, (ny, nx), tile, where, record,
-              (region[0].start, region[1].start))  # one read pass
+        try:
+            _scan(flagged, factor, (ny, nx), tile, where, record,
+                  (region[0].start, region[1].start))  # one read pass
+        except FrameLost as exc:  # one frame of a stack: left as it came, said
+            infos.append(lost.keep(exc, "decouple"))
+            _copy(out, source, lead, region)
+            continue
         with named(where):
             info = decouple_blocks(read, write, (ny, nx), tile, plan.model,
                                    max_iter=settings.max_iter, tol=settings.tol,
@@ -144,6 +154,8 @@ def tiled(path, hdul, plan, out, flags, settings, record=None):
                                    progress=settings.progress, read_mask=read_mask)
         infos.append(info)
     record.warn(label)
+    if lost.said():
+        warnings.warn(lost.said(), cv.ProductWarning, stacklevel=2)
     return infos
 
 
@@ -152,9 +164,18 @@ def _strips(shape, rows=256):
         yield slice(y0, min(shape[0], y0 + rows)), slice(0, shape[1])
 
 
+def _copy(out, source, lead, box, rows=256):
+    """``out = source`` in ``box`` of frame ``lead``, ``rows`` rows at a time."""
+    ys, xs = box
+    for y0 in range(ys.start, ys.stop, rows):
+        part = lead + (slice(y0, min(ys.stop, y0 + rows)), xs)
+        out[part] = source[part]
+
+
 def _scan(flagged, factor, shape, tile, where, record, origin):
     """One pass over the core tiles: count the unphysical pixels into
-    ``record``; refuse a frame with no finite pixel left to decouple."""
+    ``record``; :class:`~ipc_taichi.products.checks.FrameLost` for a frame with
+    no finite pixel left to decouple."""
     usable = False
     for core in tiles(shape, tile):
         values, m = flagged(core)
@@ -166,5 +187,5 @@ def _scan(flagged, factor, shape, tile, where, record, origin):
             m |= bad
         usable = usable or bool((np.isfinite(values) & ~m).any())
     if not usable:
-        raise IPCInputError(f"{where}: no finite, unmasked pixel to decouple (all NaN, flagged "
-                            "or unphysical)")
+        raise FrameLost(f"{where}: no finite, unmasked pixel to decouple (all NaN, flagged "
+                        "or unphysical)")

@@ -9,7 +9,7 @@ with the summed charge, a rational function that falls with it, with a term
 quadratic in the asymmetry ``|S-N| / (S+N)``, and a constant), with
 anisotropic nearest-neighbour weights, diagonal and second-neighbour terms.
 
-Files written (FITS, the layout of JWST products):
+Files written (FITS, the structure of JWST products):
 
 - a dark ramp in DN (gain given apart): SCI (1, ngroups, ny, nx) float32,
   ``BUNIT = 'DN'``, PIXELDQ with DO_NOT_USE junk pixels (whose SCI holds

@@ -5,7 +5,7 @@ Nothing from ``ipc_taichi`` is imported here: every electron comes from
 Hirata, Choi, Freudenburg et al., MIT licence), run unchanged from a
 configuration text. This module only writes the configuration, runs the
 simulator once per ramp and stacks its per-ramp files into one FITS file in
-the layout of a JWST ramp.
+the structure of a JWST ramp.
 
 What the simulator does (read from its source, 26.0.0):
 

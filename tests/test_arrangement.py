@@ -1,5 +1,5 @@
-"""Readout arrangements (ipc_taichi.products.layouts) and the reference pixels the
-product plan places in their image (ipc_taichi.products.plan.layout_of): contiguous,
+"""Readout arrangements (ipc_taichi.products.arrangement) and the reference pixels the
+product plan places in their image (ipc_taichi.products.plan.science_region_of): contiguous,
 IRS2, MIRI's reference columns (against the JWST pipeline's
 ``ipc_corr.get_num_ref_pixels`` on its own test fixtures), and the flag arrays of a
 RampModel that has none."""
@@ -10,7 +10,8 @@ from jwst import datamodels
 from jwst.ipc.ipc_corr import get_num_ref_pixels
 
 from ipc_taichi.errors import IPCInputError
-from ipc_taichi.products import irs2, layouts, missions, plan
+from ipc_taichi.products import irs2, missions, plan
+from ipc_taichi.products.arrangement import arrangement_of
 from ipc_taichi.products.jwst_step import _flags, _keywords
 from ipc_taichi.products.options import ProductOptions
 
@@ -25,13 +26,14 @@ def _facts(primary, science, shape, label=LABEL):
     return plan.ArrayFacts(1, "SCI", label, tuple(shape), lookup(science), lookup(primary))
 
 
-def _layout(primary, science, shape, label=LABEL):
+def _region(primary, science, shape, label=LABEL):
     mission = missions.recognise(primary, science)
-    return plan.layout_of(tuple(shape)[-2:], mission, _facts(primary, science, shape, label))
+    return plan.science_region_of(tuple(shape)[-2:], mission,
+                                  _facts(primary, science, shape, label))
 
 
 def test_contiguous_is_the_identity():
-    arrangement = layouts.arrangement_of({"TELESCOP": "JWST", "INSTRUME": "NIRCAM"}, {},
+    arrangement = arrangement_of({"TELESCOP": "JWST", "INSTRUME": "NIRCAM"}, {},
                                          (3, 64, 80), "x.fits[SCI]")
     assert (arrangement.kind, arrangement.shape, arrangement.science_shape) == (
         "contiguous", (64, 80), (64, 80))
@@ -41,21 +43,21 @@ def test_contiguous_is_the_identity():
     assert arrangement.to_science(frames) is frames
     assert arrangement.from_science(corrected, frames) is corrected
     assert arrangement.describe() == "contiguous 64x80"
-    assert layouts.arrangement_of({}, {}, (5, 7), "x.fits[SCI]").kind == "contiguous"
+    assert arrangement_of({}, {}, (5, 7), "x.fits[SCI]").kind == "contiguous"
 
 
 def test_irs2_rate_file_is_contiguous():
     header = {"INSTRUME": "NIRSPEC", "DETECTOR": "NRS1", "READPATT": "NRSIRS2"}
-    arrangement = layouts.arrangement_of(header, {}, (2048, 2048), "jw_nrs1_rate.fits[SCI]")
+    arrangement = arrangement_of(header, {}, (2048, 2048), "jw_nrs1_rate.fits[SCI]")
     assert arrangement.kind == "contiguous" and arrangement.identity
     assert arrangement.describe() == ("IRS2 read pattern, its interleaved reference samples "
                                       "already removed")
 
 
-def test_irs2_arrangement_and_the_plans_layout():
+def test_irs2_arrangement_and_the_plans_science_region():
     header = {"TELESCOP": "JWST", "INSTRUME": "NIRSPEC", "DETECTOR": "NRS2",
               "READPATT": "NRSIRS2RAPID", "NRS_NORM": 16, "NRS_REF": 4}
-    arrangement = layouts.arrangement_of(header, {}, (1, 4, 3200, 2048),
+    arrangement = arrangement_of(header, {}, (1, 4, 3200, 2048),
                                          "jw_nrs2_uncal.fits[SCI]")
     assert (arrangement.kind, arrangement.shape, arrangement.science_shape) == (
         "irs2", (3200, 2048), (2048, 2048))
@@ -67,9 +69,9 @@ def test_irs2_arrangement_and_the_plans_layout():
     assert science.shape == (1, 2, 2048, 2048)
     np.testing.assert_array_equal(arrangement.from_science(science, ramp), ramp)
     # the plan asks once: the arrangement, then the border of its image
-    layout = _layout(header, {}, (1, 4, 3200, 2048), "jw_nrs2_uncal.fits[SCI]")
-    assert layout.arrangement == arrangement and layout.shape == (2048, 2048)
-    assert layout.region == (slice(4, 2044), slice(4, 2044)) and layout.beyond == "reference"
+    region = _region(header, {}, (1, 4, 3200, 2048), "jw_nrs2_uncal.fits[SCI]")
+    assert region.arrangement == arrangement and region.shape == (2048, 2048)
+    assert region.slices == (slice(4, 2044), slice(4, 2044)) and region.beyond == "reference"
 
 
 def test_irs2_refused_with_tile():
@@ -84,10 +86,10 @@ def test_irs2_refused_with_tile():
 
 
 def test_miri_full_frame():
-    layout = _layout(MIRI, {}, (2, 1024, 1032))
-    assert layout.arrangement.identity and layout.beyond == "reference"
-    assert layout.region == (slice(0, 1024), slice(4, 1028))  # no reference rows
-    assert layout.source == "MIRI full frame"
+    region = _region(MIRI, {}, (2, 1024, 1032))
+    assert region.arrangement.identity and region.beyond == "reference"
+    assert region.slices == (slice(0, 1024), slice(4, 1028))  # no reference rows
+    assert region.source == "MIRI full frame"
 
 
 def _miri_model(xstart, xsize, ysize=64):
@@ -110,29 +112,29 @@ def test_miri_columns_are_the_pipelines(xstart, xsize):
     get = _keywords(model)
     assert get("SUBSTRT1") == xstart and get("INSTRUME") == "MIRI"
     facts = plan.ArrayFacts(1, "SCI", LABEL, model.data.shape, get, get)
-    layout = plan.layout_of((64, xsize), missions.recognise({"TELESCOP": "JWST",
-                                                             "INSTRUME": "MIRI"}), facts)
+    miri = missions.recognise({"TELESCOP": "JWST", "INSTRUME": "MIRI"})
+    region = plan.science_region_of((64, xsize), miri, facts)
     columns = np.ones(xsize, bool)
-    columns[layout.region[1]] = False
+    columns[region.slices[1]] = False
     assert columns[:nref.left_columns].all() and columns[xsize - nref.right_columns:].all()
     assert columns.sum() == nref.left_columns + nref.right_columns
     assert (nref.bottom_rows, nref.top_rows) == (0, 0)
-    assert layout.region[0] == slice(0, 64)
+    assert region.slices[0] == slice(0, 64)
 
 
 def test_miri_frame_of_reference_columns_only_refused():
     """The pipeline counts 4 right columns for a 3-column frame at the edge: every
     pixel is a reference pixel, nothing to correct."""
     with pytest.raises(IPCInputError) as err:
-        _layout(dict(MIRI, SUBSTRT1=1030, SUBSTRT2=1), {}, (64, 3))
+        _region(dict(MIRI, SUBSTRT1=1030, SUBSTRT2=1), {}, (64, 3))
     assert str(err.value) == "jw_mirimage_rate.fits[SCI]: every pixel is a reference pixel"
 
 
 def test_miri_cut_out_is_not_placed():
     """A slit cut out of a subarray keeps the exposure's SUBSTRT1 and SUBSIZE1."""
     primary = dict(MIRI, SUBSTRT1=1, SUBSTRT2=1, SUBSIZE1=72, SUBSIZE2=64)
-    assert _layout(primary, {}, (64, 72)).region == (slice(0, 64), slice(4, 72))
-    assert _layout(primary, {}, (40, 20)).source == "no reference pixels"
+    assert _region(primary, {}, (64, 72)).slices == (slice(0, 64), slice(4, 72))
+    assert _region(primary, {}, (40, 20)).source == "no reference pixels"
 
 
 @pytest.mark.parametrize("start,width,message", [
@@ -146,7 +148,7 @@ def test_miri_cut_out_is_not_placed():
 ])
 def test_geometry_refused_in_one_line(start, width, message):
     with pytest.raises(IPCInputError) as err:
-        _layout(dict(MIRI, SUBSTRT1=start, SUBSTRT2=1), {}, (64, width))
+        _region(dict(MIRI, SUBSTRT1=start, SUBSTRT2=1), {}, (64, width))
     assert str(err.value) == message
 
 

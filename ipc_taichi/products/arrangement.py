@@ -2,9 +2,9 @@
 pixels, and how to get the contiguous image on which IPC acts.
 
 The readout *arrangement* (:class:`Arrangement`) is the first question the
-product plan (:func:`ipc_taichi.products.plan.layout_of`) asks of every
+product plan (:func:`ipc_taichi.products.plan.science_region_of`) asks of every
 science array, before it decides where the science region lies inside the
-reference pixels (the plan's :class:`~ipc_taichi.products.plan.Layout`,
+reference pixels (the plan's :class:`~ipc_taichi.products.plan.ScienceRegion`,
 which holds the arrangement). :func:`arrangement_of` answers it from the
 headers and the frame's shape; :meth:`Arrangement.to_science` gives the
 image in which neighbouring array elements are neighbouring pixels on the
