@@ -102,7 +102,11 @@ def decouple(measured, law=None, geometry=None, edge=None, max_iter=iteration.MA
     out : array, optional
         Where to write the result: the input's kind, its shape, the runtime
         precision, contiguous (e.g. a page-locked buffer from
-        :func:`ipc_taichi._device.pinned_empty` reused frame after frame).
+        :func:`ipc_taichi._device.pinned_empty` reused frame after frame). A
+        NumPy ``out`` may also be any writeable floating-point array of the
+        shape (another precision or byte order, strided: a window of a
+        memory-mapped file), the result rounded into it as it is stored (on
+        the CPU in the same pass; on CUDA by one more copy at the end).
     warm_start : bool
         For a 3-D stack whose frames follow each other, such as the groups of
         a ramp: start frame ``k`` from the previous frame's answer plus the new

@@ -42,7 +42,8 @@ from ..fitsio import atomic_output
 from ..products.fitsfile import open_fits, read_array, science_header, write_skeleton
 from .startup import run_fresh
 
-__all__ = ["measure_cliramp", "write_ramp_fits", "copy_through_cli_io", "compare_outputs",
+__all__ = ["measure_cliramp", "write_ramp_fits", "ramp_cube", "precision_cost",
+           "copy_through_cli_io", "compare_outputs",
            "IO_IMPORTS", "CLIRAMP_SIZE", "CLIRAMP_GROUPS", "CLIRAMP_LAW", "TARGET_RATIO"]
 
 IO_IMPORTS = ("import numpy as np\nfrom ipc_taichi.fitsio import atomic_output\n"
@@ -71,6 +72,17 @@ def write_ramp_fits(path, size=CLIRAMP_SIZE, groups=CLIRAMP_GROUPS, law=CLIRAMP_
     charge, Gaussian read noise of :data:`READ_NOISE` e-. Frame by frame, so
     memory holds the cube once.
     """
+    cube = ramp_cube(size, groups, law, seed)
+    primary = fits.PrimaryHDU()
+    primary.header["TELESCOP"] = "ROMAN"
+    primary.header["INSTRUME"] = "WFI"
+    sci = fits.ImageHDU(cube, name="SCI")
+    sci.header["BUNIT"] = "electrons"
+    fits.HDUList([primary, sci]).writeto(path, overwrite=True)
+
+
+def ramp_cube(size=CLIRAMP_SIZE, groups=CLIRAMP_GROUPS, law=CLIRAMP_LAW, seed=7):
+    """The float32 cube ``(groups, size, size)`` of :func:`write_ramp_fits`, in electrons."""
     rng = np.random.default_rng(seed)
     inner = size - 2 * BORDER
     rate = star_field(inner, seed=seed) / groups + SKY
@@ -79,12 +91,50 @@ def write_ramp_fits(path, size=CLIRAMP_SIZE, groups=CLIRAMP_GROUPS, law=CLIRAMP_
     for g in range(groups):
         truth += rng.poisson(rate)
         cube[g, BORDER:-BORDER, BORDER:-BORDER] = ipc_taichi.couple(truth, law=law, edge="zero")
-    primary = fits.PrimaryHDU()
-    primary.header["TELESCOP"] = "ROMAN"
-    primary.header["INSTRUME"] = "WFI"
-    sci = fits.ImageHDU(cube, name="SCI")
-    sci.header["BUNIT"] = "electrons"
-    fits.HDUList([primary, sci]).writeto(path, overwrite=True)
+    return cube
+
+
+def precision_cost(size=1024, groups=CLIRAMP_GROUPS, laws=(CLIRAMP_LAW, "donlon2018"), seed=7):
+    """What decoupling a float32 ramp in f32 costs in error against f64.
+
+    For each law, the science area of :func:`ramp_cube` (coupled with that
+    law: levels up to about 60 ke- at the last group) is decoupled group by
+    group in f64 and in f32 (the same stopping rule), and per law over all
+    groups: ``max_e``, ``rms_e`` (``|f32 - f64|`` in electrons), ``max_rel_corr``
+    (the largest ``|f32 - f64|`` over the largest correction ``|S - M|`` of its
+    group, f64), ``max_ulps`` (the largest ``|f32 - f64|`` in units of the f32
+    spacing of the data, ``np.spacing(float32(M))``), ``max_ulps_stored`` (the
+    same between the f32 answer and the f64 one rounded to float32, as the
+    file stores it) and ``iterations`` (the most of a group, f64 / f32)."""
+    rows = {}
+    for law in laws:
+        cube = ramp_cube(size, groups, law, seed)[:, BORDER:-BORDER, BORDER:-BORDER]
+        worst = dict(max_e=0.0, sq=0.0, n=0, max_rel_corr=0.0, max_ulps=0.0,
+                     max_ulps_stored=0.0, its=[0, 0])
+        for g in range(groups):
+            m = cube[g]
+            s64, i64 = ipc_taichi.decouple(m.astype(np.float64), law=law, edge="zero",
+                                           precision="f64", full_output=True)
+            s32, i32 = ipc_taichi.decouple(m, law=law, edge="zero", precision="f32",
+                                           full_output=True)
+            d = np.abs(s32.astype(np.float64) - s64)
+            worst["max_e"] = max(worst["max_e"], float(d.max()))
+            worst["sq"] += float((d * d).sum())
+            worst["n"] += d.size
+            worst["max_rel_corr"] = max(worst["max_rel_corr"],
+                                        float(d.max() / np.abs(s64 - m).max()))
+            spacing = np.spacing(np.abs(m))
+            worst["max_ulps"] = max(worst["max_ulps"], float((d / spacing).max()))
+            stored = np.abs(s32 - s64.astype(np.float32)).astype(np.float64)  # as written
+            worst["max_ulps_stored"] = max(worst["max_ulps_stored"],
+                                           float((stored / spacing).max()))
+            worst["its"] = [max(worst["its"][0], i64.iterations),
+                            max(worst["its"][1], i32.iterations)]
+        rows[law] = {"max_e": worst["max_e"], "rms_e": (worst["sq"] / worst["n"]) ** 0.5,
+                     "max_rel_corr": worst["max_rel_corr"], "max_ulps": worst["max_ulps"],
+                     "max_ulps_stored": worst["max_ulps_stored"],
+                     "iterations": tuple(worst["its"]), "max_level_e": float(cube.max())}
+    return rows
 
 
 def copy_through_cli_io(input_path, output_path, index=1):

@@ -7,12 +7,15 @@ stopping rule), ``--arch/--precision`` (the Taichi runtime) and ``--quiet``.
 any work.
 """
 
-from .. import iteration
+import os
+
+from .. import iteration, runtime
 from ..errors import IPCInputError
 from ..model import DEFAULT_LAW, EDGES, CouplingModel
 
 __all__ = ["add_model_arguments", "add_iteration_arguments", "add_runtime_arguments",
-           "add_quiet_argument", "model_from_args", "model_is_explicit", "DEFAULT_LAW"]
+           "add_quiet_argument", "model_from_args", "model_is_explicit", "product_precision",
+           "DEFAULT_LAW"]
 
 def add_model_arguments(parser):
     """``--law``, ``--geometry``, ``--edge`` or ``--model FILE``: the coupling model."""
@@ -52,15 +55,31 @@ def add_iteration_arguments(parser):
     return g
 
 
-def add_runtime_arguments(parser):
-    """``--arch``, ``--precision``: the Taichi runtime."""
+def add_runtime_arguments(parser, products=False):
+    """``--arch``, ``--precision``: the Taichi runtime (``products``: a command
+    on product files, whose precision may follow the file: ``auto``)."""
     r = parser.add_argument_group("runtime")
     r.add_argument("--arch", choices=("auto", "cpu", "cuda"), default=None,
                    help="Taichi arch (default: $IPC_TAICHI_ARCH or auto = CUDA if present, "
                         "else CPU)")
-    r.add_argument("--precision", choices=("f64", "f32"), default=None,
-                   help="floating precision (default: $IPC_TAICHI_PRECISION or f64)")
+    if products:
+        r.add_argument("--precision", choices=("auto", "f64", "f32"), default=None,
+                       help="floating precision (default: $IPC_TAICHI_PRECISION, else auto: "
+                            "the file's own, f32 for float32 science data (exact to within "
+                            "about one float32 step of the data, see docs/products.md), "
+                            "else f64)")
+    else:
+        r.add_argument("--precision", choices=("f64", "f32"), default=None,
+                       help="floating precision (default: $IPC_TAICHI_PRECISION or f64)")
     return r
+
+
+def product_precision(asked):
+    """The precision a product command runs with: ``asked`` (``--precision``),
+    else ``$IPC_TAICHI_PRECISION`` (None: the runtime reads it), else ``"auto"``."""
+    if asked is not None or os.environ.get(runtime.PRECISION_ENV):
+        return asked
+    return "auto"
 
 
 def add_quiet_argument(parser, what="progress bars and notices"):

@@ -18,18 +18,19 @@ are those of :mod:`ipc_taichi.products.conventions`.
 """
 
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .. import iteration, noise
+from .. import iteration, noise, runtime
 from ..coupling import couple
 from ..decoupling import decouple
 from ..errors import ConvergenceWarning, DivergenceError, IPCInputError
 from ..interrupts import check_stop
 from ..progress import reporters
 from .checks import FrameLost, LostFrames
-from .conventions import ProductWarning, Unphysical, untrusted
+from .conventions import PHYSICAL_RANGE, ProductWarning, Unphysical, untrusted
+from .options import precision_for
 
 __all__ = ["RunSettings", "FramePlan", "FrameBuffers", "correct_frames", "named", "OPERATIONS"]
 
@@ -197,6 +198,8 @@ def correct_frames(data, plan, settings=RunSettings(), *, mask=None, out=None, n
     infos : list of DecoupleInfo (decouple) or of None (couple), one per frame.
     """
     data = np.asarray(data)
+    if settings.precision == "auto":
+        settings = replace(settings, precision=precision_for("auto", [data.dtype]))
     shape = data.shape
     ny, nx = shape[-2:]
     region = plan.region or (slice(0, ny), slice(0, nx))
@@ -209,8 +212,9 @@ def correct_frames(data, plan, settings=RunSettings(), *, mask=None, out=None, n
         _copy_outside(out, data, region)
     flat_out = out.reshape((-1, ny, nx))
     science = frames[:1, region[0], region[1]].shape[1:]
-    units = _Units(plan.scale, region)
     base = None if plan.pedestal is None else np.asarray(plan.pedestal, np.float64)[region]
+    units = _Units(plan.scale, region, data.dtype,
+                   runtime.init(settings.arch, settings.precision).dtype, base)
     after_frame, after_iteration = reporters(settings.progress, frames.shape[0],
                                              settings.max_iter)
     solver = _Solver(plan.model, settings, after_iteration, base)
@@ -222,6 +226,10 @@ def correct_frames(data, plan, settings=RunSettings(), *, mask=None, out=None, n
              if operation == "decouple"}
     infos, lost = [], LostFrames(frames.shape[0])
     groups = shape[-3] if plan.ramp and operation == "decouple" and len(shape) > 2 else 1
+    # the result stored by the decoupler straight into out (one pass, no f64 copy) when
+    # it is the answer as it is: no units, no pedestal, no mask to keep values under
+    direct = operation == "decouple" and groups == 1 and units.unit and base is None \
+        and not noisy
     for k0 in range(0, frames.shape[0], groups):
         check_stop()  # a SIGINT/SIGTERM swallowed by a library stops the run here
         ks = range(k0, k0 + groups)
@@ -236,11 +244,13 @@ def correct_frames(data, plan, settings=RunSettings(), *, mask=None, out=None, n
             infos.append(lost.keep(exc, operation, groups))
             flat_out[k0][region] = frames[k0][region]
             continue
-        results, run_infos = solver.solve(measured, ms, wheres)
+        into = flat_out[k0][region] if direct and ms[0] is None else None
+        results, run_infos = solver.solve(measured, ms, wheres, into)
         for k, y, m, result, info in zip(ks, measured, ms, results, run_infos):
-            result = units.back(result)
             target = flat_out[k][region]
-            target[...] = result if m is None else np.where(m, frames[k][region], result)
+            if into is None:
+                result = units.back(result)
+                target[...] = result if m is None else np.where(m, frames[k][region], result)
             if noisy:
                 _propagate(noisy, k, region, target, y, m, plan.model, units.inside, base)
             infos.append(info)
@@ -256,14 +266,20 @@ def correct_frames(data, plan, settings=RunSettings(), *, mask=None, out=None, n
 
 class _Units:
     """Electrons per data unit of an array (``scale``) and of its science
-    region (``inside``)."""
+    region (``inside``), and the dtype its charge is held in (``dtype``):
+    float64, or the runtime's ``precision`` (f32) when the data convert to
+    it exactly and the charge is the data (no scale, no pedestal): the
+    same bits as through float64, one conversion less."""
 
-    def __init__(self, scale, region):
+    def __init__(self, scale, region, data_dtype=np.float64, precision=np.float64,
+                 pedestal=None):
         self.scale = np.asarray(scale, dtype=np.float64)
         self.per_pixel = self.scale.ndim == 2
         self.inside = self.scale[region] if self.per_pixel else self.scale
         # the number 1: a pass saved, no bit changed
         self.unit = self.inside.ndim == 0 and float(self.inside) == 1.0
+        exact = self.unit and pedestal is None and np.can_cast(data_dtype, precision, "safe")
+        self.dtype = np.dtype(precision if exact else np.float64)
 
     def back(self, result):
         """A result in electrons back in data units (no gain: masked by the caller)."""
@@ -275,15 +291,26 @@ class _Units:
 
 def _frame_in(frame, units, base, record, where, offset, operation, flagged, into=None):
     """One frame's measured charge (electrons) and its mask (None when none);
-    written into ``into`` (a float64 array of its shape the caller has done with)
-    when given."""
-    measured = frame.astype(np.float64) if into is None else into
+    written into ``into`` (an array of its shape, of :attr:`_Units.dtype`, the
+    caller has done with) when given.
+
+    The frame's least and largest charge are found first (two reads, no
+    temporary): when both lie in :data:`PHYSICAL_RANGE` every pixel is
+    finite and physical, and the per-pixel passes of the unphysical and
+    finiteness rules are skipped (they would find nothing)."""
+    measured = frame.astype(units.dtype) if into is None else into
     if into is not None:
         np.copyto(measured, frame, casting="unsafe")
     if not units.unit:
         measured *= units.inside
     m = untrusted([], 0, measured.shape, flagged,
                   gain=units.inside if units.per_pixel else None)
+    if base is None and measured.size and \
+            PHYSICAL_RANGE[0] <= measured.min() and measured.max() <= PHYSICAL_RANGE[1]:
+        if m is not None and m.all():
+            raise FrameLost(f"{where}: no finite, unmasked pixel to {operation} "
+                            "(all NaN, flagged or unphysical)")
+        return measured, m
     bad = record.add(measured if base is None else measured + base, m, where, offset)
     if bad is not None:
         m = bad if m is None else (m | bad)
@@ -313,8 +340,10 @@ class _Solver:
         self.buffers = FrameBuffers()
         self.cached = {}  # the pedestal's answer, per mask
 
-    def solve(self, measured, masks, wheres):
-        """The frames (one, or the groups of one integration, warm-started)."""
+    def solve(self, measured, masks, wheres, into=None):
+        """The frames (one, or the groups of one integration, warm-started);
+        ``into``: where a lone frame's answer is stored (any float array of its
+        shape; no pedestal), or None."""
         if len(measured) == 1:
             charge, mask, where = measured[0], masks[0], wheres[0]
         else:
@@ -323,7 +352,7 @@ class _Solver:
                 [np.zeros(charge.shape[1:], bool) if m is None else m for m in masks])
         if self.base is not None:
             charge = charge + self.base
-        result, info = self.run(charge, mask, where, self.buffers)
+        result, info = self.run(charge, mask, where, self.buffers, into)
         results = [result] if len(measured) == 1 else list(result)
         infos = [info] if len(measured) == 1 else list(info)
         if self.base is not None:
@@ -334,12 +363,14 @@ class _Solver:
                 results[i] = results[i] - self.cached[key]
         return results, infos
 
-    def run(self, charge, mask, where, buffers=None):
+    def run(self, charge, mask, where, buffers=None, into=None):
         """One frame in electrons (or a ramp's groups: warm-started); ``buffers``
         (a :class:`FrameBuffers` or None): the previous frame's answer, done
-        with, is written again, this one kept."""
+        with, is written again, this one kept; ``into``: where the answer is
+        stored instead (returned as it is)."""
         s = self.settings
-        out = None if buffers is None else buffers.take_answer(np.shape(charge))
+        out = into if into is not None or buffers is None \
+            else buffers.take_answer(np.shape(charge))
         with warnings.catch_warnings(), named(where):
             warnings.simplefilter("ignore", ConvergenceWarning)  # reported per frame by callers
             if s.operation == "decouple":
@@ -348,6 +379,8 @@ class _Solver:
                                         precision=s.precision, full_output=True,
                                         callback=self.callback,
                                         warm_start=np.ndim(charge) == 3, out=out)
+                if into is not None:
+                    return result, info
                 if buffers is not None and type(result) is np.ndarray and result.ndim == 2:
                     buffers.answer = result
             else:

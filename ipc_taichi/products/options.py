@@ -16,7 +16,7 @@ from ..model import EDGES, CouplingModel
 from .checks import check_numbers
 from .missions import DEFAULT_DQ
 
-__all__ = ["ProductOptions", "resolve_model", "NOISE_CHOICES"]
+__all__ = ["ProductOptions", "resolve_model", "precision_for", "NOISE_CHOICES"]
 
 NOISE_CHOICES = ("propagate", "keep")
 """What is done with the noise arrays beside the science one."""
@@ -33,8 +33,13 @@ class ProductOptions:
         multi-read product), else the first image HDU with data.
     overwrite : bool
         Replace an existing output.
-    max_iter, tol, arch, precision :
+    max_iter, tol, arch :
         As for :func:`ipc_taichi.decouple`.
+    precision : {None, "auto", "f64", "f32"}
+        As for :func:`ipc_taichi.decouple` (None: the runtime's), or
+        ``"auto"``: each science array in its own precision
+        (:func:`precision_for`: f32 for float32 data, else f64), the command
+        line's default.
     tile : int, optional
         Decouple tile by tile through memory maps (FITS, decouple only).
     progress : bool or callable
@@ -146,6 +151,19 @@ class ProductOptions:
     def replace(self, **changes):
         """A copy with ``changes``."""
         return dataclasses.replace(self, **changes)
+
+
+def precision_for(precision, dtypes):
+    """The runtime precision of a run asked for with ``precision`` on data of
+    ``dtypes`` (the science arrays' dtypes): ``"auto"`` gives ``"f32"`` when
+    every one is float32 (the f32 answer is then exact to the data's own
+    precision: ``docs/products.md``, Precision), else ``"f64"``; any other
+    value is returned as it is."""
+    if precision != "auto":
+        return precision
+    import numpy as np
+
+    return "f32" if all(np.dtype(d) == np.float32 for d in dtypes) else "f64"
 
 
 def resolve_model(model, options):
