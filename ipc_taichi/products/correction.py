@@ -235,29 +235,33 @@ def correct_frames(data, plan, settings=RunSettings(), *, mask=None, out=None, n
         ks = range(k0, k0 + groups)
         wheres = [f"{plan.label} frame {k}" if frames.shape[0] > 1 else plan.label for k in ks]
         into = solver.buffers.take_charge(science) if groups == 1 else None
-        try:
-            measured, ms = zip(*(_frame_in(frames[k][region], units, base, record, where,
-                                           offset, operation,
-                                           None if masks is None else masks[k][region], into)
-                                 for k, where in zip(ks, wheres)))
-        except FrameLost as exc:  # one frame of a stack: left as it came, said
-            infos.append(lost.keep(exc, operation, groups))
-            flat_out[k0][region] = frames[k0][region]
-            continue
-        into = flat_out[k0][region] if direct and ms[0] is None else None
-        results, run_infos = solver.solve(measured, ms, wheres, into)
-        for k, y, m, result, info in zip(ks, measured, ms, results, run_infos):
-            target = flat_out[k][region]
-            if into is None:
-                result = units.back(result)
-                target[...] = result if m is None else np.where(m, frames[k][region], result)
-            if noisy:
-                _propagate(noisy, k, region, target, y, m, plan.model, units.inside, base)
-            infos.append(info)
-            if after_frame is not None:
-                after_frame(k + 1)
-        if groups == 1:
-            solver.buffers.charge = measured[0]
+        done = {}  # frame -> its info
+        taken = []  # (frame, where, measured, mask) of the frames corrected
+        for k, where in zip(ks, wheres):
+            try:
+                taken.append((k, where) + _frame_in(
+                    frames[k][region], units, base, record, where, offset, operation,
+                    None if masks is None else masks[k][region], into))
+            except FrameLost as exc:  # one frame of a stack or read of a ramp: left as it came
+                done[k] = lost.keep(exc, operation)
+                flat_out[k][region] = frames[k][region]
+        if taken:
+            ks, wheres, measured, ms = zip(*taken)
+            into = flat_out[k0][region] if direct and ms[0] is None else None
+            results, run_infos = solver.solve(measured, ms, wheres, into)
+            for k, y, m, result, info in zip(ks, measured, ms, results, run_infos):
+                target = flat_out[k][region]
+                if into is None:
+                    result = units.back(result)
+                    target[...] = result if m is None else np.where(m, frames[k][region], result)
+                if noisy:
+                    _propagate(noisy, k, region, target, y, m, plan.model, units.inside, base)
+                done[k] = info
+                if after_frame is not None:
+                    after_frame(k + 1)
+            if groups == 1:
+                solver.buffers.charge = measured[0]
+        infos.extend(done[k] for k in sorted(done))
     record.warn(plan.label)
     if lost.said():
         warnings.warn(lost.said(), ProductWarning, stacklevel=2)

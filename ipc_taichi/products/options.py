@@ -163,7 +163,8 @@ def precision_for(precision, dtypes):
         return precision
     import numpy as np
 
-    return "f32" if all(np.dtype(d) == np.float32 for d in dtypes) else "f64"
+    dtypes = [np.dtype(d) for d in dtypes]  # either byte order
+    return "f32" if all(d.kind == "f" and d.itemsize == 4 for d in dtypes) else "f64"
 
 
 def resolve_model(model, options):
