@@ -493,7 +493,8 @@ def run_decouple(frames, model, info, layout, iterate, out=None, warm_start=Fals
     with ENGINE_LOCK, _stream_order(frames) as order:
         run = _Run(frames, model, info, layout, "measured")
         out = run.output(out)
-        warm = WarmStart(run) if warm_start and frames.shape[0] > 1 else None
+        carried = not isinstance(warm_start, bool)  # a carrier: from the call before, to the next
+        warm = _warm_for(run, warm_start, carried)
         with run.pinned(out):
             for k in range(frames.shape[0]):
                 shift = warm.host_shift() if warm is not None else None
@@ -510,14 +511,31 @@ def run_decouple(frames, model, info, layout, iterate, out=None, warm_start=Fals
                     step.launch, step.result = launch, run.ws.maxima_wait
 
                 answer = iterate(k, step, run.ws, warmed)
-                if warm is not None and k + 1 < frames.shape[0]:
+                if warm is not None and (carried or k + 1 < frames.shape[0]):
                     warm.keep(answer, base)
                 run.finish(k, io, answer, out, any_bad)
         order.adopt(out if frames.on_device else None)
+    if carried:
+        warm_start.state = warm
     if run.loose is not None:
         np.copyto(run.loose, out, casting="unsafe")
         return run.loose
     return out
+
+
+def _warm_for(run, warm_start, carried):
+    """The call's :class:`WarmStart`: none (cold), a new one (a stack with
+    ``warm_start=True``), or with a carrier (an object with a ``state``
+    attribute, :class:`ipc_taichi.decoupling.WarmCarry`) the one it carries
+    from the call before, when that ran in this workspace (else a new one:
+    the first frame starts from scratch)."""
+    if not carried:
+        return WarmStart(run) if warm_start and run.frames.shape[0] > 1 else None
+    held = warm_start.state
+    if held is not None and held.run.ws is run.ws:
+        held.run = run
+        return held
+    return WarmStart(run)
 
 
 def _stream_order(frames):

@@ -191,3 +191,27 @@ def test_auto_precision_follows_the_data(cpu):
     np.testing.assert_array_equal(by64, correct_frames(ramp, FramePlan(MODEL), RunSettings())[0])
     steps = np.spacing(np.abs(ramp).astype(np.float32)).astype(np.float64)
     assert 0 < np.abs(by32 - by64).max() and (np.abs(by32 - by64) / steps).max() <= 2
+
+
+def test_a_warm_start_carried_call_to_call_is_the_stacks(cpu):
+    """Frames decoupled one call each with a :class:`WarmCarry` get the warm
+    stack's answers bit for bit (the same starts, the same rule); after
+    :meth:`~WarmCarry.reset` a frame starts from scratch (the cold answer)."""
+    from ipc_taichi.decoupling import WarmCarry
+
+    ramp = _ramp(4)
+    stack, stack_infos = ipc_taichi.decouple(ramp, model=MODEL, warm_start=True,
+                                             full_output=True)
+    carry = WarmCarry()
+    calls = [ipc_taichi.decouple(f, model=MODEL, warm_start=carry, full_output=True)
+             for f in ramp]
+    np.testing.assert_array_equal(np.stack([a for a, _ in calls]), stack)
+    assert [i.warm_start for _, i in calls] == [i.warm_start for i in stack_infos] == \
+        [False, True, True, True]
+    assert [i.iterations for _, i in calls] == [i.iterations for i in stack_infos]
+    assert stack_infos[3].iterations < ipc_taichi.decouple(ramp[3], model=MODEL,
+                                                           full_output=True)[1].iterations
+    carry.reset()
+    again, info = ipc_taichi.decouple(ramp[3], model=MODEL, warm_start=carry, full_output=True)
+    assert not info.warm_start
+    np.testing.assert_array_equal(again, ipc_taichi.decouple(ramp[3], model=MODEL))

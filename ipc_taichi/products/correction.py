@@ -24,7 +24,7 @@ import numpy as np
 
 from .. import iteration, noise, runtime
 from ..coupling import couple
-from ..decoupling import decouple
+from ..decoupling import WarmCarry, decouple
 from ..errors import ConvergenceWarning, DivergenceError, IPCInputError
 from ..interrupts import check_stop
 from ..progress import reporters
@@ -225,43 +225,35 @@ def correct_frames(data, plan, settings=RunSettings(), *, mask=None, out=None, n
     noisy = {k: v.reshape((-1, ny, nx)) for k, v in (noise or {}).items()
              if operation == "decouple"}
     infos, lost = [], LostFrames(frames.shape[0])
-    groups = shape[-3] if plan.ramp and operation == "decouple" and len(shape) > 2 else 1
+    groups = shape[-3] if plan.ramp and operation == "decouple" and len(shape) > 2 else 0
     # the result stored by the decoupler straight into out (one pass, no f64 copy) when
     # it is the answer as it is: no units, no pedestal, no mask to keep values under
-    direct = operation == "decouple" and groups == 1 and units.unit and base is None \
-        and not noisy
-    for k0 in range(0, frames.shape[0], groups):
+    direct = operation == "decouple" and units.unit and base is None and not noisy
+    for k in range(frames.shape[0]):
         check_stop()  # a SIGINT/SIGTERM swallowed by a library stops the run here
-        ks = range(k0, k0 + groups)
-        wheres = [f"{plan.label} frame {k}" if frames.shape[0] > 1 else plan.label for k in ks]
-        into = solver.buffers.take_charge(science) if groups == 1 else None
-        done = {}  # frame -> its info
-        taken = []  # (frame, where, measured, mask) of the frames corrected
-        for k, where in zip(ks, wheres):
-            try:
-                taken.append((k, where) + _frame_in(
-                    frames[k][region], units, base, record, where, offset, operation,
-                    None if masks is None else masks[k][region], into))
-            except FrameLost as exc:  # one frame of a stack or read of a ramp: left as it came
-                done[k] = lost.keep(exc, operation)
-                flat_out[k][region] = frames[k][region]
-        if taken:
-            ks, wheres, measured, ms = zip(*taken)
-            into = flat_out[k0][region] if direct and ms[0] is None else None
-            results, run_infos = solver.solve(measured, ms, wheres, into)
-            for k, y, m, result, info in zip(ks, measured, ms, results, run_infos):
-                target = flat_out[k][region]
-                if into is None:
-                    result = units.back(result)
-                    target[...] = result if m is None else np.where(m, frames[k][region], result)
-                if noisy:
-                    _propagate(noisy, k, region, target, y, m, plan.model, units.inside, base)
-                done[k] = info
-                if after_frame is not None:
-                    after_frame(k + 1)
-            if groups == 1:
-                solver.buffers.charge = measured[0]
-        infos.extend(done[k] for k in sorted(done))
+        where = f"{plan.label} frame {k}" if frames.shape[0] > 1 else plan.label
+        if groups and k % groups == 0:
+            solver.carry.reset()  # an integration's first group: from scratch
+        try:
+            y, m = _frame_in(frames[k][region], units, base, record, where, offset, operation,
+                             None if masks is None else masks[k][region],
+                             solver.buffers.take_charge(science))
+        except FrameLost as exc:  # one frame of a stack or read of a ramp: left as it came
+            infos.append(lost.keep(exc, operation))
+            flat_out[k][region] = frames[k][region]
+            continue
+        target = flat_out[k][region]
+        into = target if direct and m is None else None
+        result, info = solver.solve(y, m, where, into, warm=bool(groups))
+        if into is None:
+            result = units.back(result)
+            target[...] = result if m is None else np.where(m, frames[k][region], result)
+        if noisy:
+            _propagate(noisy, k, region, target, y, m, plan.model, units.inside, base)
+        infos.append(info)
+        if after_frame is not None:
+            after_frame(k + 1)
+        solver.buffers.charge = y
     record.warn(plan.label)
     if lost.said():
         warnings.warn(lost.said(), ProductWarning, stacklevel=2)
@@ -343,35 +335,26 @@ class _Solver:
         self.model, self.settings, self.callback, self.base = model, settings, callback, base
         self.buffers = FrameBuffers()
         self.cached = {}  # the pedestal's answer, per mask
+        self.carry = WarmCarry()  # a ramp's warm start, from one group to the next
 
-    def solve(self, measured, masks, wheres, into=None):
-        """The frames (one, or the groups of one integration, warm-started);
-        ``into``: where a lone frame's answer is stored (any float array of its
+    def solve(self, measured, mask, where, into=None, warm=False):
+        """One frame (``warm``: a ramp's group, started from the groups before
+        it); ``into``: where its answer is stored (any float array of its
         shape; no pedestal), or None."""
-        if len(measured) == 1:
-            charge, mask, where = measured[0], masks[0], wheres[0]
-        else:
-            charge, where = np.stack(measured), f"{wheres[0]}-{wheres[-1].rsplit(' ', 1)[-1]}"
-            mask = None if all(m is None for m in masks) else np.stack(
-                [np.zeros(charge.shape[1:], bool) if m is None else m for m in masks])
+        charge = measured if self.base is None else measured + self.base
+        result, info = self.run(charge, mask, where, self.buffers, into, warm)
         if self.base is not None:
-            charge = charge + self.base
-        result, info = self.run(charge, mask, where, self.buffers, into)
-        results = [result] if len(measured) == 1 else list(result)
-        infos = [info] if len(measured) == 1 else list(info)
-        if self.base is not None:
-            for i, (m, w) in enumerate(zip(masks, wheres)):
-                key = None if m is None else m.tobytes()
-                if key not in self.cached:  # the pedestal through the same law, once per mask
-                    self.cached[key] = self.run(self.base, m, w)[0]
-                results[i] = results[i] - self.cached[key]
-        return results, infos
+            key = None if mask is None else mask.tobytes()
+            if key not in self.cached:  # the pedestal through the same law, once per mask
+                self.cached[key] = self.run(self.base, mask, where)[0]
+            result = result - self.cached[key]
+        return result, info
 
-    def run(self, charge, mask, where, buffers=None, into=None):
-        """One frame in electrons (or a ramp's groups: warm-started); ``buffers``
-        (a :class:`FrameBuffers` or None): the previous frame's answer, done
-        with, is written again, this one kept; ``into``: where the answer is
-        stored instead (returned as it is)."""
+    def run(self, charge, mask, where, buffers=None, into=None, warm=False):
+        """One frame in electrons; ``buffers`` (a :class:`FrameBuffers` or
+        None): the previous frame's answer, done with, is written again, this
+        one kept; ``into``: where the answer is stored instead (returned as it
+        is); ``warm``: started from the frames before (:attr:`carry`)."""
         s = self.settings
         out = into if into is not None or buffers is None \
             else buffers.take_answer(np.shape(charge))
@@ -382,7 +365,7 @@ class _Solver:
                                         max_iter=s.max_iter, tol=s.tol, arch=s.arch,
                                         precision=s.precision, full_output=True,
                                         callback=self.callback,
-                                        warm_start=np.ndim(charge) == 3, out=out)
+                                        warm_start=self.carry if warm else False, out=out)
                 if into is not None:
                     return result, info
                 if buffers is not None and type(result) is np.ndarray and result.ndim == 2:
