@@ -107,9 +107,11 @@ class FramePlan:
     ramp : bool
         The frames along axis -3 are the groups of a ramp (the charge grows
         from one to the next): decouple each integration's groups with warm
-        starts (:func:`ipc_taichi.decouple` ``warm_start=True``: each group
-        starts from the previous group's answer plus the new charge; the same
-        stopping rule, so the same tolerance as from scratch).
+        starts (each group starts from the previous groups' answers plus the
+        new charge; the same stopping rule, so the same tolerance as from
+        scratch), one group at a time, the start carried from one to the
+        next by a :class:`~ipc_taichi.decoupling.WarmCarry`. A group with
+        nothing to decouple is left as it came, as a lost frame of a stack.
     label : str
         The file and array, for messages.
     """

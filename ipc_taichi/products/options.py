@@ -93,9 +93,10 @@ class ProductOptions:
     warm_start : bool
         Decouple the groups of a ramp with warm starts (each from the
         previous group's answer plus the new charge; the same stopping rule).
-        Off by default: through the products it costs more than it saves
-        (a 4096x4096 x 12 ramp: 22 s against 8.7 s from scratch, the groups
-        of an integration stacked in memory: ``bench/RESULTS.md``).
+        The groups are streamed one at a time, the warm start carried from
+        one to the next (:class:`ipc_taichi.decoupling.WarmCarry`). Off by
+        default: on the CPU its passes over each group cost about what the
+        iteration it saves costs (``docs/products.md``, Ramps and stacks).
     """
 
     hdu: object = None
