@@ -215,3 +215,19 @@ def test_a_warm_start_carried_call_to_call_is_the_stacks(cpu):
     again, info = ipc_taichi.decouple(ramp[3], model=MODEL, warm_start=carry, full_output=True)
     assert not info.warm_start
     np.testing.assert_array_equal(again, ipc_taichi.decouple(ramp[3], model=MODEL))
+
+
+def test_a_loose_out_on_the_device_path_gets_the_same_answer(cpu):
+    """The device path (its Taichi buffers, run on the CPU) fills a
+    big-endian float32 window ``out`` by one copy at the end: the host path's
+    answer (to rounding: another layout), and ``out`` is what is returned."""
+    from ipc_taichi import engine
+
+    frame = _ramp(1)[0]
+    host = np.zeros((30, 30), dtype=">f4")[2:26, 3:27]
+    ipc_taichi.decouple(frame, model=MODEL, out=host)
+    device = np.zeros((30, 30), dtype=">f4")[2:26, 3:27]
+    with engine.device_buffers():
+        assert ipc_taichi.decouple(frame, model=MODEL, out=device) is device
+    np.testing.assert_allclose(device, host, rtol=1e-6)  # the layouts agree to rounding
+    assert host.any() and np.abs(host - frame).max() > 1.0

@@ -43,10 +43,10 @@ from astropy.io import fits
 import ipc_taichi
 
 from .. import iteration
-from ..cli.options import product_precision
 from ..datasets import star_field
 from ..fitsio import atomic_output
 from ..products.fitsfile import open_fits, read_array, science_header, write_skeleton
+from ..products.options import product_precision
 from .startup import run_fresh
 
 __all__ = ["measure_cliramp", "write_ramp_fits", "ramp_cube", "precision_cost",

@@ -29,6 +29,7 @@ from ..errors import IPCInputError
 from ..hpc import available_cores
 from ..products import ProductOptions, couple_file, decouple_file, written_by_ipc_taichi
 from ..products.missions import DEFAULT_DQ
+from ..products.options import product_precision
 from ..progress import terminal_progress
 from .commands import one_line
 from .many import add_cluster_arguments, many_paths, report_skipped_only, skip_one, split_done
@@ -39,7 +40,6 @@ from .options import (
     add_runtime_arguments,
     model_from_args,
     model_is_explicit,
-    product_precision,
 )
 
 __all__ = ["add_parsers", "run_couple", "run_decouple", "output_name", "summary_line"]

@@ -7,15 +7,12 @@ stopping rule), ``--arch/--precision`` (the Taichi runtime) and ``--quiet``.
 any work.
 """
 
-import os
-
-from .. import iteration, runtime
+from .. import iteration
 from ..errors import IPCInputError
 from ..model import DEFAULT_LAW, EDGES, CouplingModel
 
 __all__ = ["add_model_arguments", "add_iteration_arguments", "add_runtime_arguments",
-           "add_quiet_argument", "model_from_args", "model_is_explicit", "product_precision",
-           "DEFAULT_LAW"]
+           "add_quiet_argument", "model_from_args", "model_is_explicit", "DEFAULT_LAW"]
 
 def add_model_arguments(parser):
     """``--law``, ``--geometry``, ``--edge`` or ``--model FILE``: the coupling model."""
@@ -72,14 +69,6 @@ def add_runtime_arguments(parser, products=False):
         r.add_argument("--precision", choices=("f64", "f32"), default=None,
                        help="floating precision (default: $IPC_TAICHI_PRECISION or f64)")
     return r
-
-
-def product_precision(asked):
-    """The precision a product command runs with: ``asked`` (``--precision``),
-    else ``$IPC_TAICHI_PRECISION`` (None: the runtime reads it), else ``"auto"``."""
-    if asked is not None or os.environ.get(runtime.PRECISION_ENV):
-        return asked
-    return "auto"
 
 
 def add_quiet_argument(parser, what="progress bars and notices"):

@@ -8,15 +8,18 @@ name in one line).
 """
 
 import dataclasses
+import os
 from dataclasses import dataclass
 
 from .. import iteration
 from ..errors import IPCInputError
 from ..model import EDGES, CouplingModel
+from ..runtime import PRECISION_ENV
 from .checks import check_numbers
 from .missions import DEFAULT_DQ
 
-__all__ = ["ProductOptions", "resolve_model", "precision_for", "NOISE_CHOICES"]
+__all__ = ["ProductOptions", "resolve_model", "precision_for", "product_precision",
+           "NOISE_CHOICES"]
 
 NOISE_CHOICES = ("propagate", "keep")
 """What is done with the noise arrays beside the science one."""
@@ -166,6 +169,15 @@ def precision_for(precision, dtypes):
 
     dtypes = [np.dtype(d) for d in dtypes]  # either byte order
     return "f32" if all(d.kind == "f" and d.itemsize == 4 for d in dtypes) else "f64"
+
+
+def product_precision(asked):
+    """The precision a product command (``ipc-taichi couple|decouple``) runs
+    with: ``asked`` (``--precision``), else ``$IPC_TAICHI_PRECISION`` (None:
+    the runtime reads it), else ``"auto"``."""
+    if asked is not None or os.environ.get(PRECISION_ENV):
+        return asked
+    return "auto"
 
 
 def resolve_model(model, options):
