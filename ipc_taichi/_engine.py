@@ -235,6 +235,7 @@ class _Run:
         # overwritten, for its bad pixels' values
         self.aliased = False
         self.kept = None
+        self.loose = None  # the caller's out when results are copied there at the end
 
     def output(self, out):
         """The result stack (the caller's ``out`` after checks, or a new one)."""
@@ -258,11 +259,17 @@ class _Run:
             return np.empty(shape, dtype=self.info.dtype)
         out3 = out[np.newaxis] if isinstance(out, np.ndarray) and out.ndim == 2 else out
         if not (isinstance(out3, np.ndarray) and out3.shape == shape
-                and out3.dtype == self.info.dtype and out3.flags.c_contiguous
-                and out3.flags.writeable):
-            raise IPCInputError(f"out: expected a writeable C-contiguous {self.info.dtype} "
-                                f"NumPy array of shape {shape[1:] if frames.was_2d else shape}")
+                and out3.dtype.kind == "f" and out3.flags.writeable):
+            raise IPCInputError(f"out: expected a writeable {self.info.dtype} NumPy array of "
+                                f"shape {shape[1:] if frames.was_2d else shape}")
         self.aliased = self._check_alias(out3)
+        if out3.dtype != self.info.dtype or not out3.flags.c_contiguous:
+            if self.aliased:
+                raise IPCInputError("out: the input itself must be a C-contiguous "
+                                    f"{self.info.dtype} array")
+            if self.device_buffers:  # a strict frame stack, copied into out at the end
+                self.loose = out3
+                return np.empty(shape, dtype=self.info.dtype)
         return out3
 
     def _check_alias(self, out3):
@@ -471,6 +478,9 @@ def run_couple(frames, model, info, layout, out=None):
                 run.step(any_bad, ws.start, base, ws.nxt, +1.0)
                 run.finish(k, io, ws.nxt, out, any_bad)
         order.adopt(out if frames.on_device else None)
+    if run.loose is not None:
+        np.copyto(run.loose, out, casting="unsafe")
+        return run.loose
     return out
 
 
@@ -483,7 +493,8 @@ def run_decouple(frames, model, info, layout, iterate, out=None, warm_start=Fals
     with ENGINE_LOCK, _stream_order(frames) as order:
         run = _Run(frames, model, info, layout, "measured")
         out = run.output(out)
-        warm = WarmStart(run) if warm_start and frames.shape[0] > 1 else None
+        carried = not isinstance(warm_start, bool)  # a carrier: from the call before, to the next
+        warm = _warm_for(run, warm_start, carried)
         with run.pinned(out):
             for k in range(frames.shape[0]):
                 shift = warm.host_shift() if warm is not None else None
@@ -500,11 +511,31 @@ def run_decouple(frames, model, info, layout, iterate, out=None, warm_start=Fals
                     step.launch, step.result = launch, run.ws.maxima_wait
 
                 answer = iterate(k, step, run.ws, warmed)
-                if warm is not None and k + 1 < frames.shape[0]:
+                if warm is not None and (carried or k + 1 < frames.shape[0]):
                     warm.keep(answer, base)
                 run.finish(k, io, answer, out, any_bad)
         order.adopt(out if frames.on_device else None)
+    if carried:
+        warm_start.state = warm
+    if run.loose is not None:
+        np.copyto(run.loose, out, casting="unsafe")
+        return run.loose
     return out
+
+
+def _warm_for(run, warm_start, carried):
+    """The call's :class:`WarmStart`: none (cold), a new one (a stack with
+    ``warm_start=True``), or with a carrier (an object with a ``state``
+    attribute, :class:`ipc_taichi.decoupling.WarmCarry`) the one it carries
+    from the call before, when that ran in this workspace (else a new one:
+    the first frame starts from scratch)."""
+    if not carried:
+        return WarmStart(run) if warm_start and run.frames.shape[0] > 1 else None
+    held = warm_start.state
+    if held is not None and held.run.ws is run.ws:
+        held.run = run
+        return held
+    return WarmStart(run)
 
 
 def _stream_order(frames):

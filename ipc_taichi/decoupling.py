@@ -17,7 +17,26 @@ from . import iteration
 from ._engine import as_result, as_stack, run_decouple, start
 from .model import CouplingModel
 
-__all__ = ["decouple", "DecoupleInfo"]
+__all__ = ["decouple", "DecoupleInfo", "WarmCarry"]
+
+
+class WarmCarry:
+    """The warm start carried from one call of :func:`decouple` to the next,
+    for the frames of a ramp decoupled one call each (each group read,
+    decoupled and written before the next is read): pass the same carrier as
+    ``warm_start=`` to every call, group after group; each call starts from
+    the answers of the calls before it as a stack's frame would
+    (:class:`ipc_taichi._warm.WarmStart`), and keeps its own for the next.
+    :meth:`reset` before a frame that does not follow (a new integration):
+    it then starts from scratch. The first call, or one after a change of
+    frame shape, model layout or runtime, starts from scratch too."""
+
+    def __init__(self):
+        self.state = None  # the engine's WarmStart of the last call
+
+    def reset(self):
+        """The next call starts from scratch."""
+        self.state = None
 
 
 @dataclass
@@ -102,8 +121,12 @@ def decouple(measured, law=None, geometry=None, edge=None, max_iter=iteration.MA
     out : array, optional
         Where to write the result: the input's kind, its shape, the runtime
         precision, contiguous (e.g. a page-locked buffer from
-        :func:`ipc_taichi._device.pinned_empty` reused frame after frame).
-    warm_start : bool
+        :func:`ipc_taichi._device.pinned_empty` reused frame after frame). A
+        NumPy ``out`` may also be any writeable floating-point array of the
+        shape (another precision or byte order, strided: a window of a
+        memory-mapped file), the result rounded into it as it is stored (on
+        the CPU in the same pass; on CUDA by one more copy at the end).
+    warm_start : bool or WarmCarry
         For a 3-D stack whose frames follow each other, such as the groups of
         a ramp: start frame ``k`` from the previous frame's answer plus the new
         charge, ``S_0 = M_k + (S_(k-1) - M_(k-1))``, instead of ``S_0 = M_k``
@@ -114,7 +137,8 @@ def decouple(measured, law=None, geometry=None, edge=None, max_iter=iteration.MA
         depends on frame ``k - 1``. Unrelated frames are still decoupled
         correctly (their start is no better than ``M_k``, and the rule still
         decides when to stop). Default ``False``: each frame from scratch,
-        independent of the others.
+        independent of the others. A :class:`WarmCarry`: the same for frames
+        given one call each (the carrier holds the state between calls).
 
     Returns
     -------
@@ -151,7 +175,8 @@ def decouple(measured, law=None, geometry=None, edge=None, max_iter=iteration.MA
         return answer
 
     result = run_decouple(frames, model, info, layout, iterate, out=out,
-                          warm_start=bool(warm_start))
+                          warm_start=warm_start if isinstance(warm_start, WarmCarry)
+                          else bool(warm_start))
     signal = as_result(result, frames, out)
     if full_output:
         return signal, (infos[0] if frames.was_2d else infos)

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from astropy.io import fits
 
+from ipc_taichi.products.options import product_precision
 from ipc_taichi.reference import couple_reference, decouple_reference
 from tests.helpers import run_cli
 
@@ -171,3 +172,39 @@ def test_no_library_module_imports_the_command_line():
                 offenders.append(str(rel))
     assert offenders == []
     assert (root / "cli" / "options.py").exists()
+
+
+def test_precision_follows_the_file_by_default(cli, tmp_path, rng, monkeypatch):
+    """Without ``--precision`` or ``$IPC_TAICHI_PRECISION`` a float32 file is
+    decoupled in f32 and a float64 one in f64 (``auto``); the environment,
+    when set, is the default instead; ``--precision`` wins over both."""
+    frame = rng.uniform(100.0, 5e4, (24, 24))
+    paths = {}
+    for kind in ("f32", "f64"):
+        paths[kind] = tmp_path / f"{kind}.fits"
+        data = frame.astype(np.float32 if kind == "f32" else np.float64)
+        fits.HDUList([fits.PrimaryHDU(), fits.ImageHDU(data, name="SCI")]).writeto(paths[kind])
+
+    def ran(src, *args):
+        out = tmp_path / "out.fits"
+        r = cli("decouple", src, "--output", out, "--overwrite", "--law", "constant:0.01",
+                "--quiet", *args)
+        assert r.returncode == 0, r.stderr
+        return fits.getheader(out)["IPCPREC"]
+
+    try:
+        monkeypatch.delenv("IPC_TAICHI_PRECISION", raising=False)
+        assert ran(paths["f32"]) == "f32" and ran(paths["f64"]) == "f64"
+        assert ran(paths["f32"], "--precision", "f64") == "f64"
+        assert ran(paths["f32"]) == "f32"
+        monkeypatch.setenv("IPC_TAICHI_PRECISION", "f64")
+        assert ran(paths["f64"], "--precision", "auto") == "f64"
+        assert ran(paths["f32"], "--precision", "auto") == "f32"
+    finally:
+        import ipc_taichi
+
+        ipc_taichi.init("cpu", "f64")
+    # the environment, when set, is the default (a fresh process's runtime reads it)
+    assert product_precision(None) is None and product_precision("f32") == "f32"
+    monkeypatch.delenv("IPC_TAICHI_PRECISION")
+    assert product_precision(None) == "auto"

@@ -105,3 +105,129 @@ def test_the_record_and_the_summary_come_from_the_plan_and_the_settings():
     couple = Provenance(plan, RunSettings("couple"))
     couple.infos[1] = [None]
     assert (couple.summary("x")["iterations"], couple.summary("x")["converged"]) == (0, None)
+
+
+def _ramp(reads=5, size=24, seed=3):
+    """A small coupled ramp (reads, size, size) in electrons, up to about 40 ke-."""
+    rng = np.random.default_rng(seed)
+    rate = rng.uniform(100.0, 8000.0, (size, size))
+    truth = np.cumsum(np.broadcast_to(rate, (reads, size, size)), axis=0)
+    return np.stack([ipc_taichi.couple(t, model=MODEL) for t in truth])
+
+
+def test_a_lost_read_of_a_warm_ramp_is_kept_alone(cpu):
+    """Read 2 of a 5-read ramp all NaN: with warm starts it alone is left as
+    it came (said once); the other reads are decoupled, equal to a cold run's
+    to the stopping rule's tolerance (the run used to refuse the ramp)."""
+    ramp = _ramp()
+    ramp[2] = np.nan
+    settings = RunSettings()
+    with pytest.warns(UserWarning, match="frame 2: no finite, unmasked pixel"):
+        warm, warm_infos = correct_frames(ramp, FramePlan(MODEL, ramp=True), settings)
+    with pytest.warns(UserWarning, match="frame 2"):
+        cold, cold_infos = correct_frames(ramp, FramePlan(MODEL), settings)
+    assert np.isnan(warm[2]).all() and np.isnan(cold[2]).all()
+    assert [getattr(i, "lost", None) is not None for i in warm_infos] == \
+        [False, False, True, False, False]
+    for k in (0, 1, 3, 4):
+        assert warm_infos[k].converged
+        assert np.abs(warm[k] - cold[k]).max() <= settings.tol * np.abs(cold[k]).max()
+        assert np.abs(warm[k] - ramp[k]).max() > 10 * settings.tol * np.abs(cold[k]).max()
+    assert [i.warm_start for i in warm_infos if not getattr(i, "lost", None)] == \
+        [False, True, True, True]
+
+
+def test_the_physical_range_pass_gives_the_rules_answer(cpu):
+    """A frame whose least and largest charge are physical skips the per-pixel
+    rules; one holding an unphysical or a NaN pixel takes them: each answer is
+    the one of the rules (the unphysical pixel kept, counted; the NaN kept)."""
+    frame = _ramp(1)[0]
+    clean, _ = correct_frames(frame, FramePlan(MODEL), RunSettings())
+    np.testing.assert_array_equal(clean, ipc_taichi.decouple(frame, model=MODEL))
+    bad = frame.copy()
+    bad[3, 4], bad[7, 7] = 5e6, np.nan
+    with pytest.warns(UserWarning, match="1 unflagged pixel"):
+        out, _ = correct_frames(bad, FramePlan(MODEL), RunSettings())
+    assert out[3, 4] == 5e6 and np.isnan(out[7, 7])
+    with np.errstate(invalid="ignore"):
+        unphysical = bad > 1e6
+    np.testing.assert_array_equal(out, ipc_taichi.decouple(bad, model=MODEL, mask=unphysical))
+
+
+def test_the_answer_is_stored_straight_into_a_big_endian_float32_out(cpu):
+    """A big-endian float32 ``out`` (a memory-mapped FITS array) gets the
+    answer rounded from the run's precision, as a float64 out would give it
+    after a cast; its reference border is copied from the data."""
+    ramp = _ramp(3).astype(np.float32)
+    out = np.zeros(ramp.shape, dtype=">f4")
+    region = (slice(2, 22), slice(2, 22))
+    plan = FramePlan(MODEL, region=region)
+    correct_frames(ramp, plan, RunSettings(), out=out)
+    wide, _ = correct_frames(ramp, plan, RunSettings())
+    np.testing.assert_array_equal(out, wide.astype(np.float32))
+    direct = np.zeros((20, 20), dtype=">f4")
+    answer = ipc_taichi.decouple(ramp[0][region].astype(np.float64), model=MODEL, out=direct)
+    assert answer is direct
+    np.testing.assert_array_equal(direct, wide[0][region].astype(np.float32))
+
+
+def test_auto_precision_follows_the_data(cpu):
+    """``precision="auto"`` runs float32 data in f32 (within two float32 steps
+    of the f64 answer) and float64 data in f64 (the f64 answer, bit for bit)."""
+    from ipc_taichi.products.options import precision_for
+
+    assert precision_for("auto", [np.dtype(">f4")]) == "f32"
+    assert precision_for("auto", [np.float32, np.float64]) == "f64"
+    assert precision_for("f64", [np.float32]) == "f64"
+    ramp = _ramp(2)
+    auto = RunSettings(precision="auto")
+    try:
+        by64, infos64 = correct_frames(ramp, FramePlan(MODEL), auto)
+        by32, infos32 = correct_frames(ramp.astype(np.float32), FramePlan(MODEL), auto)
+    finally:
+        ipc_taichi.init("cpu", "f64")
+    assert [i.precision for i in infos64] == ["f64"] * 2
+    assert [i.precision for i in infos32] == ["f32"] * 2
+    np.testing.assert_array_equal(by64, correct_frames(ramp, FramePlan(MODEL), RunSettings())[0])
+    steps = np.spacing(np.abs(ramp).astype(np.float32)).astype(np.float64)
+    assert 0 < np.abs(by32 - by64).max() and (np.abs(by32 - by64) / steps).max() <= 2
+
+
+def test_a_warm_start_carried_call_to_call_is_the_stacks(cpu):
+    """Frames decoupled one call each with a :class:`WarmCarry` get the warm
+    stack's answers bit for bit (the same starts, the same rule); after
+    :meth:`~WarmCarry.reset` a frame starts from scratch (the cold answer)."""
+    from ipc_taichi.decoupling import WarmCarry
+
+    ramp = _ramp(4)
+    stack, stack_infos = ipc_taichi.decouple(ramp, model=MODEL, warm_start=True,
+                                             full_output=True)
+    carry = WarmCarry()
+    calls = [ipc_taichi.decouple(f, model=MODEL, warm_start=carry, full_output=True)
+             for f in ramp]
+    np.testing.assert_array_equal(np.stack([a for a, _ in calls]), stack)
+    assert [i.warm_start for _, i in calls] == [i.warm_start for i in stack_infos] == \
+        [False, True, True, True]
+    assert [i.iterations for _, i in calls] == [i.iterations for i in stack_infos]
+    assert stack_infos[3].iterations < ipc_taichi.decouple(ramp[3], model=MODEL,
+                                                           full_output=True)[1].iterations
+    carry.reset()
+    again, info = ipc_taichi.decouple(ramp[3], model=MODEL, warm_start=carry, full_output=True)
+    assert not info.warm_start
+    np.testing.assert_array_equal(again, ipc_taichi.decouple(ramp[3], model=MODEL))
+
+
+def test_a_loose_out_on_the_device_path_gets_the_same_answer(cpu):
+    """The device path (its Taichi buffers, run on the CPU) fills a
+    big-endian float32 window ``out`` by one copy at the end: the host path's
+    answer (to rounding: another layout), and ``out`` is what is returned."""
+    from ipc_taichi import engine
+
+    frame = _ramp(1)[0]
+    host = np.zeros((30, 30), dtype=">f4")[2:26, 3:27]
+    ipc_taichi.decouple(frame, model=MODEL, out=host)
+    device = np.zeros((30, 30), dtype=">f4")[2:26, 3:27]
+    with engine.device_buffers():
+        assert ipc_taichi.decouple(frame, model=MODEL, out=device) is device
+    np.testing.assert_allclose(device, host, rtol=1e-6)  # the layouts agree to rounding
+    assert host.any() and np.abs(host - frame).max() > 1.0

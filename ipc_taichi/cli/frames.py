@@ -29,6 +29,7 @@ from ..errors import IPCInputError
 from ..hpc import available_cores
 from ..products import ProductOptions, couple_file, decouple_file, written_by_ipc_taichi
 from ..products.missions import DEFAULT_DQ
+from ..products.options import product_precision
 from ..progress import terminal_progress
 from .commands import one_line
 from .many import add_cluster_arguments, many_paths, report_skipped_only, skip_one, split_done
@@ -138,7 +139,7 @@ def add_parsers(sub):
         add_model_arguments(p)
         if name == "decouple":
             add_iteration_arguments(p)
-        add_runtime_arguments(p)
+        add_runtime_arguments(p, products=True)
         add_quiet_argument(p, "summary line, progress bar or CUDA notice (warnings and errors "
                               "are still said)")
         p.set_defaults(run=run_couple if name == "couple" else run_decouple)
@@ -148,7 +149,8 @@ def _product_options(args):
     """The :class:`ProductOptions` of the command line."""
     dtype = None if args.output_dtype == "same" else args.output_dtype
     options = dict(hdu=args.hdu, overwrite=args.overwrite, arch=args.arch,
-                   precision=args.precision, dq_bits=args.dq_bits, refpix=args.refpix,
+                   precision=product_precision(args.precision), dq_bits=args.dq_bits,
+                   refpix=args.refpix,
                    gain=args.gain, exptime=args.exptime, bunit=args.bunit, output_dtype=dtype,
                    pedestal=args.pedestal, coadds=args.coadds, saturation=args.saturation,
                    unphysical="keep" if args.keep_unphysical else "mask",

@@ -52,14 +52,22 @@ def add_iteration_arguments(parser):
     return g
 
 
-def add_runtime_arguments(parser):
-    """``--arch``, ``--precision``: the Taichi runtime."""
+def add_runtime_arguments(parser, products=False):
+    """``--arch``, ``--precision``: the Taichi runtime (``products``: a command
+    on product files, whose precision may follow the file: ``auto``)."""
     r = parser.add_argument_group("runtime")
     r.add_argument("--arch", choices=("auto", "cpu", "cuda"), default=None,
                    help="Taichi arch (default: $IPC_TAICHI_ARCH or auto = CUDA if present, "
                         "else CPU)")
-    r.add_argument("--precision", choices=("f64", "f32"), default=None,
-                   help="floating precision (default: $IPC_TAICHI_PRECISION or f64)")
+    if products:
+        r.add_argument("--precision", choices=("auto", "f64", "f32"), default=None,
+                       help="floating precision (default: $IPC_TAICHI_PRECISION, else auto: "
+                            "the file's own, f32 for float32 science data (exact to within "
+                            "about one float32 step of the data, see docs/products.md), "
+                            "else f64)")
+    else:
+        r.add_argument("--precision", choices=("f64", "f32"), default=None,
+                       help="floating precision (default: $IPC_TAICHI_PRECISION or f64)")
     return r
 
 

@@ -18,18 +18,19 @@ are those of :mod:`ipc_taichi.products.conventions`.
 """
 
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .. import iteration, noise
+from .. import iteration, noise, runtime
 from ..coupling import couple
-from ..decoupling import decouple
+from ..decoupling import WarmCarry, decouple
 from ..errors import ConvergenceWarning, DivergenceError, IPCInputError
 from ..interrupts import check_stop
 from ..progress import reporters
 from .checks import FrameLost, LostFrames
-from .conventions import ProductWarning, Unphysical, untrusted
+from .conventions import PHYSICAL_RANGE, ProductWarning, Unphysical, untrusted
+from .options import precision_for
 
 __all__ = ["RunSettings", "FramePlan", "FrameBuffers", "correct_frames", "named", "OPERATIONS"]
 
@@ -106,9 +107,11 @@ class FramePlan:
     ramp : bool
         The frames along axis -3 are the groups of a ramp (the charge grows
         from one to the next): decouple each integration's groups with warm
-        starts (:func:`ipc_taichi.decouple` ``warm_start=True``: each group
-        starts from the previous group's answer plus the new charge; the same
-        stopping rule, so the same tolerance as from scratch).
+        starts (each group starts from the previous groups' answers plus the
+        new charge; the same stopping rule, so the same tolerance as from
+        scratch), one group at a time, the start carried from one to the
+        next by a :class:`~ipc_taichi.decoupling.WarmCarry`. A group with
+        nothing to decouple is left as it came, as a lost frame of a stack.
     label : str
         The file and array, for messages.
     """
@@ -197,6 +200,8 @@ def correct_frames(data, plan, settings=RunSettings(), *, mask=None, out=None, n
     infos : list of DecoupleInfo (decouple) or of None (couple), one per frame.
     """
     data = np.asarray(data)
+    if settings.precision == "auto":
+        settings = replace(settings, precision=precision_for("auto", [data.dtype]))
     shape = data.shape
     ny, nx = shape[-2:]
     region = plan.region or (slice(0, ny), slice(0, nx))
@@ -209,8 +214,9 @@ def correct_frames(data, plan, settings=RunSettings(), *, mask=None, out=None, n
         _copy_outside(out, data, region)
     flat_out = out.reshape((-1, ny, nx))
     science = frames[:1, region[0], region[1]].shape[1:]
-    units = _Units(plan.scale, region)
     base = None if plan.pedestal is None else np.asarray(plan.pedestal, np.float64)[region]
+    units = _Units(plan.scale, region, data.dtype,
+                   runtime.init(settings.arch, settings.precision).dtype, base)
     after_frame, after_iteration = reporters(settings.progress, frames.shape[0],
                                              settings.max_iter)
     solver = _Solver(plan.model, settings, after_iteration, base)
@@ -221,33 +227,35 @@ def correct_frames(data, plan, settings=RunSettings(), *, mask=None, out=None, n
     noisy = {k: v.reshape((-1, ny, nx)) for k, v in (noise or {}).items()
              if operation == "decouple"}
     infos, lost = [], LostFrames(frames.shape[0])
-    groups = shape[-3] if plan.ramp and operation == "decouple" and len(shape) > 2 else 1
-    for k0 in range(0, frames.shape[0], groups):
+    groups = shape[-3] if plan.ramp and operation == "decouple" and len(shape) > 2 else 0
+    # the result stored by the decoupler straight into out (one pass, no f64 copy) when
+    # it is the answer as it is: no units, no pedestal, no mask to keep values under
+    direct = operation == "decouple" and units.unit and base is None and not noisy
+    for k in range(frames.shape[0]):
         check_stop()  # a SIGINT/SIGTERM swallowed by a library stops the run here
-        ks = range(k0, k0 + groups)
-        wheres = [f"{plan.label} frame {k}" if frames.shape[0] > 1 else plan.label for k in ks]
-        into = solver.buffers.take_charge(science) if groups == 1 else None
+        where = f"{plan.label} frame {k}" if frames.shape[0] > 1 else plan.label
+        if groups and k % groups == 0:
+            solver.carry.reset()  # an integration's first group: from scratch
         try:
-            measured, ms = zip(*(_frame_in(frames[k][region], units, base, record, where,
-                                           offset, operation,
-                                           None if masks is None else masks[k][region], into)
-                                 for k, where in zip(ks, wheres)))
-        except FrameLost as exc:  # one frame of a stack: left as it came, said
-            infos.append(lost.keep(exc, operation, groups))
-            flat_out[k0][region] = frames[k0][region]
+            y, m = _frame_in(frames[k][region], units, base, record, where, offset, operation,
+                             None if masks is None else masks[k][region],
+                             solver.buffers.take_charge(science))
+        except FrameLost as exc:  # one frame of a stack or read of a ramp: left as it came
+            infos.append(lost.keep(exc, operation))
+            flat_out[k][region] = frames[k][region]
             continue
-        results, run_infos = solver.solve(measured, ms, wheres)
-        for k, y, m, result, info in zip(ks, measured, ms, results, run_infos):
+        target = flat_out[k][region]
+        into = target if direct and m is None else None
+        result, info = solver.solve(y, m, where, into, warm=bool(groups))
+        if into is None:
             result = units.back(result)
-            target = flat_out[k][region]
             target[...] = result if m is None else np.where(m, frames[k][region], result)
-            if noisy:
-                _propagate(noisy, k, region, target, y, m, plan.model, units.inside, base)
-            infos.append(info)
-            if after_frame is not None:
-                after_frame(k + 1)
-        if groups == 1:
-            solver.buffers.charge = measured[0]
+        if noisy:
+            _propagate(noisy, k, region, target, y, m, plan.model, units.inside, base)
+        infos.append(info)
+        if after_frame is not None:
+            after_frame(k + 1)
+        solver.buffers.charge = y
     record.warn(plan.label)
     if lost.said():
         warnings.warn(lost.said(), ProductWarning, stacklevel=2)
@@ -256,14 +264,20 @@ def correct_frames(data, plan, settings=RunSettings(), *, mask=None, out=None, n
 
 class _Units:
     """Electrons per data unit of an array (``scale``) and of its science
-    region (``inside``)."""
+    region (``inside``), and the dtype its charge is held in (``dtype``):
+    float64, or the runtime's ``precision`` (f32) when the data convert to
+    it exactly and the charge is the data (no scale, no pedestal): the
+    same bits as through float64, one conversion less."""
 
-    def __init__(self, scale, region):
+    def __init__(self, scale, region, data_dtype=np.float64, precision=np.float64,
+                 pedestal=None):
         self.scale = np.asarray(scale, dtype=np.float64)
         self.per_pixel = self.scale.ndim == 2
         self.inside = self.scale[region] if self.per_pixel else self.scale
         # the number 1: a pass saved, no bit changed
         self.unit = self.inside.ndim == 0 and float(self.inside) == 1.0
+        exact = self.unit and pedestal is None and np.can_cast(data_dtype, precision, "safe")
+        self.dtype = np.dtype(precision if exact else np.float64)
 
     def back(self, result):
         """A result in electrons back in data units (no gain: masked by the caller)."""
@@ -275,15 +289,26 @@ class _Units:
 
 def _frame_in(frame, units, base, record, where, offset, operation, flagged, into=None):
     """One frame's measured charge (electrons) and its mask (None when none);
-    written into ``into`` (a float64 array of its shape the caller has done with)
-    when given."""
-    measured = frame.astype(np.float64) if into is None else into
+    written into ``into`` (an array of its shape, of :attr:`_Units.dtype`, the
+    caller has done with) when given.
+
+    The frame's least and largest charge are found first (two reads, no
+    temporary): when both lie in :data:`PHYSICAL_RANGE` every pixel is
+    finite and physical, and the per-pixel passes of the unphysical and
+    finiteness rules are skipped (they would find nothing)."""
+    measured = frame.astype(units.dtype) if into is None else into
     if into is not None:
         np.copyto(measured, frame, casting="unsafe")
     if not units.unit:
         measured *= units.inside
     m = untrusted([], 0, measured.shape, flagged,
                   gain=units.inside if units.per_pixel else None)
+    if base is None and measured.size and \
+            PHYSICAL_RANGE[0] <= measured.min() and measured.max() <= PHYSICAL_RANGE[1]:
+        if m is not None and m.all():
+            raise FrameLost(f"{where}: no finite, unmasked pixel to {operation} "
+                            "(all NaN, flagged or unphysical)")
+        return measured, m
     bad = record.add(measured if base is None else measured + base, m, where, offset)
     if bad is not None:
         m = bad if m is None else (m | bad)
@@ -312,34 +337,29 @@ class _Solver:
         self.model, self.settings, self.callback, self.base = model, settings, callback, base
         self.buffers = FrameBuffers()
         self.cached = {}  # the pedestal's answer, per mask
+        self.carry = WarmCarry()  # a ramp's warm start, from one group to the next
 
-    def solve(self, measured, masks, wheres):
-        """The frames (one, or the groups of one integration, warm-started)."""
-        if len(measured) == 1:
-            charge, mask, where = measured[0], masks[0], wheres[0]
-        else:
-            charge, where = np.stack(measured), f"{wheres[0]}-{wheres[-1].rsplit(' ', 1)[-1]}"
-            mask = None if all(m is None for m in masks) else np.stack(
-                [np.zeros(charge.shape[1:], bool) if m is None else m for m in masks])
+    def solve(self, measured, mask, where, into=None, warm=False):
+        """One frame (``warm``: a ramp's group, started from the groups before
+        it); ``into``: where its answer is stored (any float array of its
+        shape; no pedestal), or None."""
+        charge = measured if self.base is None else measured + self.base
+        result, info = self.run(charge, mask, where, self.buffers, into, warm)
         if self.base is not None:
-            charge = charge + self.base
-        result, info = self.run(charge, mask, where, self.buffers)
-        results = [result] if len(measured) == 1 else list(result)
-        infos = [info] if len(measured) == 1 else list(info)
-        if self.base is not None:
-            for i, (m, w) in enumerate(zip(masks, wheres)):
-                key = None if m is None else m.tobytes()
-                if key not in self.cached:  # the pedestal through the same law, once per mask
-                    self.cached[key] = self.run(self.base, m, w)[0]
-                results[i] = results[i] - self.cached[key]
-        return results, infos
+            key = None if mask is None else mask.tobytes()
+            if key not in self.cached:  # the pedestal through the same law, once per mask
+                self.cached[key] = self.run(self.base, mask, where)[0]
+            result = result - self.cached[key]
+        return result, info
 
-    def run(self, charge, mask, where, buffers=None):
-        """One frame in electrons (or a ramp's groups: warm-started); ``buffers``
-        (a :class:`FrameBuffers` or None): the previous frame's answer, done
-        with, is written again, this one kept."""
+    def run(self, charge, mask, where, buffers=None, into=None, warm=False):
+        """One frame in electrons; ``buffers`` (a :class:`FrameBuffers` or
+        None): the previous frame's answer, done with, is written again, this
+        one kept; ``into``: where the answer is stored instead (returned as it
+        is); ``warm``: started from the frames before (:attr:`carry`)."""
         s = self.settings
-        out = None if buffers is None else buffers.take_answer(np.shape(charge))
+        out = into if into is not None or buffers is None \
+            else buffers.take_answer(np.shape(charge))
         with warnings.catch_warnings(), named(where):
             warnings.simplefilter("ignore", ConvergenceWarning)  # reported per frame by callers
             if s.operation == "decouple":
@@ -347,7 +367,9 @@ class _Solver:
                                         max_iter=s.max_iter, tol=s.tol, arch=s.arch,
                                         precision=s.precision, full_output=True,
                                         callback=self.callback,
-                                        warm_start=np.ndim(charge) == 3, out=out)
+                                        warm_start=self.carry if warm else False, out=out)
+                if into is not None:
+                    return result, info
                 if buffers is not None and type(result) is np.ndarray and result.ndim == 2:
                     buffers.answer = result
             else:

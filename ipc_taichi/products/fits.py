@@ -60,7 +60,7 @@ from .fitsfile import (
     write_skeleton,
 )
 from .noise_arrays import NOISE_ARRAYS, noise_of
-from .options import ProductOptions, resolve_model
+from .options import ProductOptions, precision_for, resolve_model
 from .plan import ArrayFacts, Zeroth, plan_product, units_in
 from .provenance import Provenance
 
@@ -224,6 +224,11 @@ def process_fits(input_path, output_path, operation="decouple", *, model=None, o
     with hdul:
         plan, flags, dtypes, noise, noise_text = _plan(input_path, hdul, model, options,
                                                        operation)
+        if options.precision == "auto":  # the science arrays' own precision
+            options = options.replace(precision=precision_for("auto", [
+                np.float32 if hdul[p.index].header["BITPIX"] == -32 else np.float64
+                for p in plan.arrays]))
+            settings = RunSettings.of(options, operation)
         if settings.tile:
             for k in [p.index for p in plan.arrays] + [f for p in plan.arrays
                                                         for f in flags[p.index]]:

@@ -8,15 +8,18 @@ name in one line).
 """
 
 import dataclasses
+import os
 from dataclasses import dataclass
 
 from .. import iteration
 from ..errors import IPCInputError
 from ..model import EDGES, CouplingModel
+from ..runtime import PRECISION_ENV
 from .checks import check_numbers
 from .missions import DEFAULT_DQ
 
-__all__ = ["ProductOptions", "resolve_model", "NOISE_CHOICES"]
+__all__ = ["ProductOptions", "resolve_model", "precision_for", "product_precision",
+           "NOISE_CHOICES"]
 
 NOISE_CHOICES = ("propagate", "keep")
 """What is done with the noise arrays beside the science one."""
@@ -33,8 +36,13 @@ class ProductOptions:
         multi-read product), else the first image HDU with data.
     overwrite : bool
         Replace an existing output.
-    max_iter, tol, arch, precision :
+    max_iter, tol, arch :
         As for :func:`ipc_taichi.decouple`.
+    precision : {None, "auto", "f64", "f32"}
+        As for :func:`ipc_taichi.decouple` (None: the runtime's), or
+        ``"auto"``: each science array in its own precision
+        (:func:`precision_for`: f32 for float32 data, else f64), the command
+        line's default.
     tile : int, optional
         Decouple tile by tile through memory maps (FITS, decouple only).
     progress : bool or callable
@@ -88,9 +96,10 @@ class ProductOptions:
     warm_start : bool
         Decouple the groups of a ramp with warm starts (each from the
         previous group's answer plus the new charge; the same stopping rule).
-        Off by default: through the products it costs more than it saves
-        (a 4096x4096 x 12 ramp: 22 s against 8.7 s from scratch, the groups
-        of an integration stacked in memory: ``bench/RESULTS.md``).
+        The groups are streamed one at a time, the warm start carried from
+        one to the next (:class:`ipc_taichi.decoupling.WarmCarry`). Off by
+        default: on the CPU its passes over each group cost about what the
+        iteration it saves costs (``docs/products.md``, Ramps and stacks).
     """
 
     hdu: object = None
@@ -146,6 +155,29 @@ class ProductOptions:
     def replace(self, **changes):
         """A copy with ``changes``."""
         return dataclasses.replace(self, **changes)
+
+
+def precision_for(precision, dtypes):
+    """The runtime precision of a run asked for with ``precision`` on data of
+    ``dtypes`` (the science arrays' dtypes): ``"auto"`` gives ``"f32"`` when
+    every one is float32 (the f32 answer is then exact to the data's own
+    precision: ``docs/products.md``, Precision), else ``"f64"``; any other
+    value is returned as it is."""
+    if precision != "auto":
+        return precision
+    import numpy as np
+
+    dtypes = [np.dtype(d) for d in dtypes]  # either byte order
+    return "f32" if all(d.kind == "f" and d.itemsize == 4 for d in dtypes) else "f64"
+
+
+def product_precision(asked):
+    """The precision a product command (``ipc-taichi couple|decouple``) runs
+    with: ``asked`` (``--precision``), else ``$IPC_TAICHI_PRECISION`` (None:
+    the runtime reads it), else ``"auto"``."""
+    if asked is not None or os.environ.get(PRECISION_ENV):
+        return asked
+    return "auto"
 
 
 def resolve_model(model, options):
