@@ -62,7 +62,11 @@ def couple(signal, law=None, geometry=None, edge=None, arch=None, precision=None
     out : array, optional
         Where to write the result: the input's kind, its shape, the runtime
         precision, contiguous (e.g. a page-locked buffer from
-        :func:`ipc_taichi.engine.pinned_empty` reused frame after frame).
+        :func:`ipc_taichi.engine.pinned_empty` reused frame after frame). A
+        NumPy ``out`` may also be any writeable floating-point array of the
+        shape (another precision or byte order, strided), the result rounded
+        into it as it is stored (on the CPU in the same pass; on CUDA by one
+        more copy at the end).
 
     Returns
     -------

@@ -124,17 +124,16 @@ class LostFrames:
     """The frames of a stack with nothing to correct (an all-flagged
     integration of a ``_rateints``, an all-NaN frame): each is left as it came,
     the others are corrected, and :meth:`said` is the one warning line; a
-    lone frame, a group of a warm-started ramp, or every frame lost: refused
-    as before."""
+    lone frame, or every frame lost: refused as before."""
 
     def __init__(self, frames):
         self.frames, self.lost = frames, []
 
-    def keep(self, exc, operation, groups=1):
+    def keep(self, exc, operation):
         """The record of the lost frame of ``exc`` (a :class:`FrameLost`);
         ``exc`` raised again where the frame cannot be left out."""
         self.lost.append(str(exc))
-        if self.frames == 1 or groups > 1 or len(self.lost) == self.frames:
+        if self.frames == 1 or len(self.lost) == self.frames:
             raise exc
         self.operation = operation
         return LostFrame(converged=True, lost=str(exc).rsplit(": ", 1)[-1]) \
