@@ -129,10 +129,10 @@ def exit_quickly():
     the interpreter's last collections skip them; the system takes the memory
     back with the process. Registered by :func:`main`, once per process.
 
-    Without it the exit of a small run costs 0.1-0.2 s CPU when ``main`` runs
-    from the ``ipc-taichi`` script (its last collections traverse the ~90 000
-    objects NumPy, astropy and Taichi leave), and Taichi's cache depends on
-    them: it is written when its program object is collected."""
+    Without it the exit of a small run costs 0.15-0.18 s CPU (the last
+    collections over the ~90 000 objects NumPy, astropy and Taichi leave),
+    and Taichi's cache depends on them: it is written when its program object
+    is collected."""
     runtime = sys.modules.get("ipc_taichi.runtime")
     if runtime is not None:
         runtime.finish()
