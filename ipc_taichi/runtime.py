@@ -40,6 +40,10 @@ recompiles everything: seconds). :func:`init` removes a lock older than
 :data:`STALE_LOCK_S` (held for milliseconds by a live process) before it starts Taichi,
 and makes Taichi's parse of this package's kernels skip the error-message art it
 formats for every node (:func:`light_source_positions`).
+
+No network at run time: ``ti.init`` would start a thread that posts Taichi's
+version to its makers each day until one answers; :func:`init` sets
+``$TI_SKIP_VERSION_CHECK=ON`` (a value the user set is kept).
 """
 
 import contextlib
@@ -56,7 +60,8 @@ from .gpus import cuda_present
 
 __all__ = ["RuntimeInfo", "init", "current", "cpu_threads", "positive_env", "ARCH_ENV",
            "PRECISION_ENV", "THREADS_ENV", "CACHE_ENV", "CACHE_PATH_ENV", "CACHE_LOCK",
-           "STALE_LOCK_S", "clear_stale_cache_lock", "light_source_positions"]
+           "STALE_LOCK_S", "clear_stale_cache_lock", "light_source_positions", "finish",
+           "VERSION_CHECK_ENV"]
 
 ARCH_ENV = "IPC_TAICHI_ARCH"
 PRECISION_ENV = "IPC_TAICHI_PRECISION"
@@ -64,6 +69,9 @@ THREADS_ENV = "IPC_TAICHI_THREADS"
 CACHE_ENV = "TI_OFFLINE_CACHE"  # Taichi's own switch of its offline cache
 CACHE_PATH_ENV = "TI_OFFLINE_CACHE_FILE_PATH"  # Taichi's own: where the cache lives
 CACHE_LOCK = "ticache.lock"  # Taichi's lock of the cache's index, in that directory
+#: Taichi's own switch of the version check that ``ti.init`` starts (a thread that
+#: posts to metadata.taichi.graphics each day it has no answer): ``ON`` skips it
+VERSION_CHECK_ENV = "TI_SKIP_VERSION_CHECK"
 #: seconds after which Taichi's cache lock is taken for one a killed process left
 STALE_LOCK_S = 120.0
 _ARCHES = ("auto", "cpu", "cuda")
@@ -240,6 +248,7 @@ def init(arch=None, precision=None):
     # ipc_taichi stays free of Taichi's start-up cost).
     os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "False")
     os.environ.setdefault("TI_LOG_LEVEL", "error")
+    os.environ.setdefault(VERSION_CHECK_ENV, "ON")  # no network at run time
     import taichi as ti
 
     light_source_positions()
@@ -252,7 +261,8 @@ def init(arch=None, precision=None):
     # fast_math off: it may reorder the stopping rule's max-reductions and drop
     # IEEE guarantees we rely on for f64 agreement with the NumPy reference.
     common = dict(default_fp=fp, fast_math=False, log_level=ti.ERROR)
-    if requested == "cpu" or (requested == "auto" and not cuda_present()):
+    on_cpu = requested == "cpu" or (requested == "auto" and not cuda_present())
+    if on_cpu:
         # Taichi vectors as LLVM vectors: the CPU's ``lanes`` step is SIMD
         # code only so (see ipc_taichi._lanes); on CUDA Taichi's default
         common["real_matrix_scalarize"] = False
@@ -266,7 +276,8 @@ def init(arch=None, precision=None):
     # ti.init prints "Starting on arch=..." unconditionally; keep stdout clean
     # for command-line output (the arch is reported by RuntimeInfo instead)
     with contextlib.redirect_stdout(io.StringIO()):
-        ti.init(arch=ti.cpu if requested == "cpu" else ti.cuda, **common)
+        # (``auto`` without CUDA asks for the CPU: Taichi would probe CUDA again)
+        ti.init(arch=ti.cpu if on_cpu else ti.cuda, **common)
     got = ti.lang.impl.current_cfg().arch
     arch_name = "cuda" if got == ti.cuda else "cpu"
     if arch_name != "cuda" and requested == "cuda":
@@ -281,3 +292,20 @@ def init(arch=None, precision=None):
     _current = RuntimeInfo(arch=arch_name, precision=precision, requested=requested,
                            threads=threads)
     return _current
+
+
+def finish():
+    """End the running runtime, if any: its kernels and arrays are dropped
+    (the reset hooks run) and Taichi's program is destroyed, which writes the
+    offline cache's index with the kernels this process compiled. The next
+    :func:`init` (or any call that runs a kernel) starts a new runtime. The
+    command line calls it at exit (:mod:`ipc_taichi.cli`)."""
+    global _current
+    if _current is None:
+        return
+    import taichi as ti
+
+    _current = None
+    for hook in _reset_hooks:
+        hook()
+    ti.reset()

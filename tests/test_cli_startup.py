@@ -256,7 +256,7 @@ def test_startup_rows_measure_fresh_processes_and_the_summary_line():
     from ipc_taichi.bench import render_section
     from ipc_taichi.bench.startup import TARGET_RATIO, TARGETS_S, measure_startup
 
-    section = measure_startup(repeats=1, sizes=(16,))
+    section = measure_startup(repeats=1, sizes=(16,), bytecode=False)  # no compile of it all
     help_row, python_row, decouple_row = section["rows"]
     assert help_row["command"] == "ipc-taichi --help"
     assert python_row["what"] == "python" and "(16x16)" in python_row["command"]
@@ -276,6 +276,53 @@ def test_startup_rows_measure_fresh_processes_and_the_summary_line():
                and n.endswith("with --quiet 0 lines") for n in section["notes"])
     text = render_section(section)
     assert text.startswith("## Start-up") and "| ipc-taichi --help | help |" in text
+    assert any(n.startswith("Bytecode: as this process has it") for n in section["notes"])
+
+
+def test_fresh_processes_read_bytecode_from_the_benchs_cache(monkeypatch, tmp_path):
+    from ipc_taichi.bench.startup import fresh_env
+
+    monkeypatch.setenv("PYTHONDONTWRITEBYTECODE", "1")
+    env = fresh_env(tmp_path)
+    assert "PYTHONDONTWRITEBYTECODE" not in env and env["PYTHONPYCACHEPREFIX"] == str(tmp_path)
+    assert env["ENABLE_TAICHI_HEADER_PRINT"] == "False"
+    kept = fresh_env()
+    assert kept["PYTHONDONTWRITEBYTECODE"] == "1" and "PYTHONPYCACHEPREFIX" not in kept
+
+
+def test_a_run_exits_frozen_with_taichis_cache_written(tmp_path):
+    """Issue 39: the command line's exit handler ends the runtime (Taichi writes its
+    offline cache, which it would otherwise do only when the collector destroys its
+    program) and then freezes every object, so that the exit skips them; ti.init
+    starts no version check (no network at run time)."""
+    script = tmp_path / "probe.py"
+    script.write_text(
+        "import atexit, gc, os\n"
+        "atexit.register(lambda: print('frozen', gc.get_freeze_count() > 0, flush=True))\n"
+        "import taichi as ti\n"
+        "from ipc_taichi import runtime\n"
+        "from ipc_taichi.cli import main\n"
+        "try:\n"
+        "    main(['--version'])  # registers the exit handler\n"
+        "except SystemExit:\n"
+        "    pass\n"
+        "runtime.init('cpu', 'f64')\n"
+        "print('version check', os.environ.get('TI_SKIP_VERSION_CHECK'), flush=True)\n"
+        "@ti.kernel\n"
+        "def twice(a: ti.types.ndarray(dtype=ti.f64, ndim=1)):\n"
+        "    for i in a:\n"
+        "        a[i] = 2 * a[i]\n"
+        "x = ti.ndarray(ti.f64, 4)\n"
+        "twice(x)\n")
+    cache = tmp_path / "ticache"
+    env = {k: v for k, v in ENV.items() if k != "TI_SKIP_VERSION_CHECK"}
+    r = subprocess.run([sys.executable, str(script)], capture_output=True, text=True,
+                       timeout=120, cwd=ROOT, env=dict(env, TI_OFFLINE_CACHE_FILE_PATH=str(cache),
+                                                       PYTHONPATH=str(ROOT)))
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.splitlines()[-2:] == ["version check ON", "frozen True"], r.stdout
+    written = sorted(p.suffix for p in cache.iterdir())
+    assert ".tic" in written and ".tcb" in written, written
 
 
 def test_a_signal_a_library_turned_into_its_own_error_ends_as_interrupted(capsys):

@@ -18,6 +18,15 @@ cache (:mod:`ipc_taichi.runtime`) holds the kernels, as it does on any machine
 after the first run, and the file is in the page cache. The summary row checks
 what a run says: the decouple prints exactly one line on stderr, its summary
 (law, iterations, convergence, HDUs, time), and ``--quiet`` none.
+
+Every process reads its modules' bytecode, as from an installed package
+(pip compiles it at install time; an editable install writes it on first
+import): with ``bytecode`` (the default) the children get a bytecode cache in
+the bench's temporary directory (``PYTHONPYCACHEPREFIX``), filled by the
+untimed runs, and ``PYTHONDONTWRITEBYTECODE`` is dropped for them; where it is
+set (as on the machines of issue 39's figures) each process would otherwise
+compile this package's sixty modules from source (0.07-0.09 s CPU). The
+notes say which.
 """
 
 import os
@@ -33,8 +42,8 @@ from astropy.io import fits
 from ..datasets import uniform_frame
 from ..reference import couple_reference
 
-__all__ = ["measure_startup", "run_fresh", "STARTUP_SIZE", "STARTUP_SIZES", "TARGETS_S",
-           "TARGET_RATIO", "FRESH_PYTHON"]
+__all__ = ["measure_startup", "run_fresh", "fresh_env", "STARTUP_SIZE", "STARTUP_SIZES",
+           "TARGETS_S", "TARGET_RATIO", "FRESH_PYTHON"]
 
 STARTUP_SIZE = 64  # the frame of the targets
 STARTUP_SIZES = (STARTUP_SIZE, 2048)
@@ -52,14 +61,25 @@ def _children_cpu():
     return usage.ru_utime + usage.ru_stime
 
 
-def run_fresh(argv):
-    """``python ARGV`` in a fresh process (Taichi's banner off): ``(wall seconds,
+def fresh_env(pycache=None):
+    """The environment of a fresh process: this one's, Taichi's banner off; with
+    ``pycache`` (a directory) modules' bytecode is read from and written there
+    (``PYTHONPYCACHEPREFIX``, ``PYTHONDONTWRITEBYTECODE`` dropped)."""
+    env = dict(os.environ, ENABLE_TAICHI_HEADER_PRINT="False")
+    if pycache is not None:
+        env.pop("PYTHONDONTWRITEBYTECODE", None)
+        env["PYTHONPYCACHEPREFIX"] = str(pycache)
+    return env
+
+
+def run_fresh(argv, pycache=None):
+    """``python ARGV`` in a fresh process (:func:`fresh_env`): ``(wall seconds,
     CPU seconds (user + system, the process and its children), the completed
     process)``; an exit code other than 0 raises RuntimeError with its last line."""
     cpu = _children_cpu()
     start = time.perf_counter()
     proc = subprocess.run([sys.executable, *argv], capture_output=True, text=True,
-                          env=dict(os.environ, ENABLE_TAICHI_HEADER_PRINT="False"))
+                          env=fresh_env(pycache))
     seconds = time.perf_counter() - start
     if proc.returncode != 0:
         tail = (proc.stderr.strip().splitlines() or ["no output"])[-1]
@@ -99,7 +119,15 @@ def _summary_notes(said, quiet, work):
     return ok, note
 
 
-def measure_startup(repeats=5, sizes=STARTUP_SIZES):
+def _bytecode_note(bytecode):
+    if bytecode:
+        return ("Bytecode: cached for every process (PYTHONPYCACHEPREFIX in the bench's "
+                "temporary directory, filled by the untimed runs), as an installed package has.")
+    return ("Bytecode: as this process has it (PYTHONDONTWRITEBYTECODE="
+            f"{os.environ.get('PYTHONDONTWRITEBYTECODE', 'unset')}).")
+
+
+def measure_startup(repeats=5, sizes=STARTUP_SIZES, bytecode=True):
     """Time ``--help``, and per size a fresh Python reading the file and a decouple
     of it, in fresh processes, interleaved.
 
@@ -108,12 +136,15 @@ def measure_startup(repeats=5, sizes=STARTUP_SIZES):
     the median, min and max of ``repeats`` wall times [s], the median CPU time,
     the decouple's ratio to the fresh Python of its size, the target and whether
     the median meets it; ``ratios`` maps each size to the interleaved pairs'
-    ratios. The arch is ``$IPC_TAICHI_ARCH`` (default ``auto``).
+    ratios. The arch is ``$IPC_TAICHI_ARCH`` (default ``auto``). ``bytecode``:
+    the processes share a bytecode cache (see the module docstring); without
+    it they inherit this process's setting.
     """
     load = os.getloadavg()
     runs = {"help": []} | {(k, n): [] for n in sizes for k in ("python", "decouple")}
     ratios = {n: [] for n in sizes}
     with tempfile.TemporaryDirectory(prefix="ipc-startup-") as work:
+        pycache = os.path.join(work, "pycache") if bytecode else None
         commands = {"help": ["-m", "ipc_taichi.cli", "--help"]}
         for n in sizes:
             src, dst = os.path.join(work, f"in{n}.fits"), os.path.join(work, f"out{n}.fits")
@@ -121,14 +152,15 @@ def measure_startup(repeats=5, sizes=STARTUP_SIZES):
             commands["python", n] = ["-c", FRESH_PYTHON, src]
             commands["decouple", n] = ["-m", "ipc_taichi.cli", "decouple", src, "--output", dst,
                                        "--overwrite"]
-            said = run_fresh(commands["decouple", n])[2].stderr  # untimed: the cache fills
+            # untimed: Taichi's cache and the bytecode cache fill
+            said = run_fresh(commands["decouple", n], pycache)[2].stderr
             if n == sizes[0]:
-                quiet = run_fresh(commands["decouple", n] + ["--quiet"])[2].stderr
+                quiet = run_fresh(commands["decouple", n] + ["--quiet"], pycache)[2].stderr
                 summary_ok, summary = _summary_notes(said.strip().splitlines(),
                                                      quiet.strip().splitlines(), work)
         for _ in range(repeats):
             for key, argv in commands.items():
-                runs[key].append(run_fresh(argv)[:2])
+                runs[key].append(run_fresh(argv, pycache)[:2])
             for n in sizes:
                 ratios[n].append(runs["decouple", n][-1][0] / runs["python", n][-1][0])
     arch = os.environ.get("IPC_TAICHI_ARCH") or "auto"
@@ -146,7 +178,7 @@ def measure_startup(repeats=5, sizes=STARTUP_SIZES):
              f"one on a loaded machine). Load average at start "
              f"{', '.join(f'{v:.2f}' for v in load)}, at end "
              f"{', '.join(f'{v:.2f}' for v in os.getloadavg())} on {os.cpu_count()} cores.",
-             summary]
+             _bytecode_note(bytecode), summary]
     return {"title": "Start-up (issue 27: --help under 1 s; issue 39: a 64x64 decouple under "
                      f"1 s and <= {TARGET_RATIO:g}x a fresh Python reading the file)",
             "rows": rows, "notes": notes, "summary_line_ok": summary_ok, "ratios": ratios}

@@ -16,9 +16,14 @@ dispatches and turns errors into one-line messages and exit codes:
 - 3: written, but the stopping rule was not met (the output says ``IPCCONV = F``);
 - 130 / 143: interrupted by SIGINT / SIGTERM (temporary files removed, nothing
   written at the output path), at any moment, also while the libraries load.
+
+A run ends quickly: at exit the loaded libraries are not traversed again by
+Python's garbage collector (:func:`exit_quickly`).
 """
 
 import argparse
+import atexit
+import gc
 import importlib
 import logging
 import signal
@@ -30,9 +35,10 @@ from ..errors import ConvergenceWarning, DivergenceError
 from ..interrupts import check_stop, clear_stop, request_stop, stop_requested
 from .commands import COMMANDS
 
-__all__ = ["main", "build_parser", "Terminated"]
+__all__ = ["main", "build_parser", "Terminated", "exit_quickly"]
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_UNCONVERGED = 0, 1, 2, 3
+_at_exit = []  # what main registered with atexit (once per process)
 
 
 class Terminated(KeyboardInterrupt):
@@ -116,6 +122,23 @@ def _ended(exc):
     raise exc
 
 
+def exit_quickly():
+    """At the process's exit (after the exit handlers registered later): the
+    Taichi runtime ended (:func:`ipc_taichi.runtime.finish`: Taichi writes its
+    offline cache's index), then every object frozen (``gc.freeze``), so that
+    the interpreter's last collections skip them; the system takes the memory
+    back with the process. Registered by :func:`main`, once per process.
+
+    Without it the exit of a small run costs 0.15-0.18 s CPU (the last
+    collections over the ~90 000 objects NumPy, astropy and Taichi leave),
+    and Taichi's cache depends on them: it is written when its program object
+    is collected."""
+    runtime = sys.modules.get("ipc_taichi.runtime")
+    if runtime is not None:
+        runtime.finish()
+    gc.freeze()
+
+
 def main(argv=None):
     """Run ``ipc-taichi`` with ``argv`` (default ``sys.argv[1:]``); return the exit code.
 
@@ -125,6 +148,9 @@ def main(argv=None):
     """
     clear_stop()
     previous = {sig: signal.signal(sig, _terminate) for sig in (signal.SIGTERM, signal.SIGINT)}
+    if exit_quickly not in _at_exit:
+        atexit.register(exit_quickly)
+        _at_exit.append(exit_quickly)
     try:
         argv = sys.argv[1:] if argv is None else list(argv)
         args = build_parser(_command(argv)).parse_args(argv)
