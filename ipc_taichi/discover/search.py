@@ -71,7 +71,15 @@ from .fitting import (
     partners,
     sds_of,
 )
-from .gates import ALTERNATIVE_RATIO, choose, gate, nameable, refusal, refuse_noiseless
+from .gates import (
+    ALTERNATIVE_RATIO,
+    choose,
+    evidence_beside,
+    gate,
+    nameable,
+    refusal,
+    refuse_noiseless,
+)
 from .labdata import LabData, read_lab
 from .model import DetectorModel, effects_from_document
 from .pairs import SEPARATION
@@ -263,7 +271,8 @@ def _candidates(setting, state, rng):
     contradicting = gate(frames, model, parts, trials, setting.probes, setting.masks)
     named = nameable(trials, contradicting)
     return Round(state.gap, floor, floor_sigma, dev_now, trials, contradicting, named,
-                 choose(trials, named, setting.threshold))
+                 choose(trials, named, setting.threshold,
+                        evidence_beside(frames, trials, setting.ln_n)))
 
 
 def _accept(setting, state, rnd, joined, say):
