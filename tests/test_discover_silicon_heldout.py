@@ -90,3 +90,21 @@ def test_silicon_diffusion_is_not_taken_for_a_shift(tmp_path_factory):
                report["unexplained"])
     sigma = report["final_model"]["effects"]["charge_diffusion"]["sigma_px"]
     assert 0.1 < sigma < 0.3
+
+
+@pytest.mark.slow
+def test_a_real_shift_beside_diffusion_is_named_at_its_truth(tmp_path_factory):
+    """Seed 152, diffusion 0.5 and a real 0.1 px shift along x, 13/36 ke-,
+    mixed hot pixels, OVERSAMP 5: the shift alone (delta BIC 1,226,597) has
+    2 % of it beside the diffusion (24,432), so the diffusion (1,434,509)
+    goes first and the shift is named next at its truth. Before, the shift
+    went first, removed 23 % of the excess and nothing was named (gap 945).
+    Measured: sigma 0.232 px, shift (0.004, 0.098), then an
+    ``anisotropic_ipc`` that is not there (-0.61), incomplete 1.121 (floor
+    0.979 +- 0.025): not asserted, a flaw left open."""
+    report = peer_report(tmp_path_factory, seed=152, silicon=DIFFUSION, hot="mixed",
+                         levels=(13000.0, 36000.0), shift=(0.0, 0.1), oversample=5, **FILE)
+    assert report["missing_effects"][:2] == ["charge_diffusion", "misregistration"]
+    shift = report["final_model"]["effects"]["misregistration"]
+    assert shift["shift_x_px"] == pytest.approx(0.1, abs=0.01)
+    assert abs(shift["shift_y_px"]) < 0.01

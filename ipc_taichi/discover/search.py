@@ -22,9 +22,11 @@ Procedure (:func:`discover`)
    needs residuals of zero mean where it adds variance), and, for
    ``anisotropic_ipc`` and ``signal_dependent_ipc``, its own signature is
    significant at 5 sigma. ``misregistration`` goes first whenever its
-   evidence reaches half the best candidate's: a shift between SCENE and
-   MEASURED contaminates every detector effect downstream (a much stronger
-   candidate means the dipoles are the leftovers of a mis-modelled effect).
+   evidence reaches half the best candidate's and, fitted again with that
+   candidate in the model, it keeps half its own (:func:`~.gates.choose`):
+   a shift between SCENE and MEASURED contaminates every detector effect
+   downstream (a much stronger candidate, or one whose work takes the shift
+   away, means the dipoles are the leftovers of a mis-modelled effect).
 4. The best candidate is added when ``delta BIC >``
    :data:`~.fitting.EVIDENCE_THRESHOLD` and, after the joint refit of every
    parameter, it removes at least :data:`~.gates.MIN_EXPLAINED_FRACTION` of the
