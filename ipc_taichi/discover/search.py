@@ -22,9 +22,11 @@ Procedure (:func:`discover`)
    needs residuals of zero mean where it adds variance), and, for
    ``anisotropic_ipc`` and ``signal_dependent_ipc``, its own signature is
    significant at 5 sigma. ``misregistration`` goes first whenever its
-   evidence reaches half the best candidate's: a shift between SCENE and
-   MEASURED contaminates every detector effect downstream (a much stronger
-   candidate means the dipoles are the leftovers of a mis-modelled effect).
+   evidence reaches half the best candidate's and, fitted again with that
+   candidate in the model, it keeps half its own (:func:`~.gates.choose`):
+   a shift between SCENE and MEASURED contaminates every detector effect
+   downstream (a much stronger candidate, or one whose work takes the shift
+   away, means the dipoles are the leftovers of a mis-modelled effect).
 4. The best candidate is added when ``delta BIC >``
    :data:`~.fitting.EVIDENCE_THRESHOLD` and, after the joint refit of every
    parameter, it removes at least :data:`~.gates.MIN_EXPLAINED_FRACTION` of the
@@ -71,7 +73,15 @@ from .fitting import (
     partners,
     sds_of,
 )
-from .gates import ALTERNATIVE_RATIO, choose, gate, nameable, refusal, refuse_noiseless
+from .gates import (
+    ALTERNATIVE_RATIO,
+    choose,
+    evidence_beside,
+    gate,
+    nameable,
+    refusal,
+    refuse_noiseless,
+)
 from .labdata import LabData, read_lab
 from .model import DetectorModel, effects_from_document
 from .pairs import SEPARATION
@@ -263,7 +273,8 @@ def _candidates(setting, state, rng):
     contradicting = gate(frames, model, parts, trials, setting.probes, setting.masks)
     named = nameable(trials, contradicting)
     return Round(state.gap, floor, floor_sigma, dev_now, trials, contradicting, named,
-                 choose(trials, named, setting.threshold))
+                 choose(trials, named, setting.threshold,
+                        evidence_beside(frames, trials, setting.ln_n)))
 
 
 def _accept(setting, state, rnd, joined, say):
