@@ -24,6 +24,15 @@ warm-started (``decouple(warm_start=True)``), and the constant law
 warm-started; the machine's streaming floor measured beside them (``floor``:
 one NumPy copy of a frame, :func:`streaming_floor`); and the general law on a
 ``general_size`` frame per iteration against that floor (``general``).
+
+Issue 39's rows: the CPU's model and vector extensions recorded with the
+result (``cpu``), and the f32 law rows and the per-iteration rows measured
+for each vector unit of ``units`` (default :func:`law_units`: this CPU's, and
+AVX2's width on an AVX-512 CPU, where it is an emulation: LLVM compiles for
+this CPU, see docs/performance.md), the ``lanes`` step built for that unit's
+width (:func:`ipc_taichi.engine.vector_unit_set`). Per iteration
+(``general``), the same step with a constant law, ``donlon2018`` and the
+table law: the difference to the constant law is the law's evaluation.
 """
 
 import statistics
@@ -33,11 +42,13 @@ import numpy as np
 
 import ipc_taichi
 
+from .. import engine
 from ..datasets import star_field, uniform_frame
 from ..laws import TabulatedLaw, donlon2018
+from .cpu import cpu_record, iteration_time
 
 __all__ = ["measure_pipeline_ipc", "jwst_ipc_kernel", "table_law", "streaming_floor",
-           "PIPELINE_SIZE", "GENERAL_SIZE"]
+           "law_units", "PIPELINE_SIZE", "GENERAL_SIZE"]
 
 NIRCAM_BORDER = 4  # reference pixels on each side of a NIRCam full frame
 PIPELINE_SIZE = 2048  # a NIRCam full frame
@@ -155,9 +166,23 @@ def _time_decouple(groups, truth, law, info, repeats, warm_start=False, step=Non
             "total_iterations": sum(i.iterations for i in infos)}
 
 
-def _law_rows(size, nints, ngroups, alpha, seed, repeats, step, jwst_s):
+def law_units():
+    """The vector units the law rows are measured for: this CPU's (``None``
+    where it has none the ``lanes`` step is built for), and AVX2's on an
+    AVX-512 CPU (the narrower width, emulated)."""
+    unit = engine.host_vector_unit()
+    return [unit, "avx2"] if unit == "avx512" else [unit]
+
+
+def _unit_name(unit):
+    return f"{unit}, {engine.lane_count('f32', unit)} lanes" if unit else "sweep"
+
+
+def _law_rows(size, nints, ngroups, alpha, seed, repeats, step, jwst_s, unit, warm=True):
     """Issue 28's rows in f32 (see the module docstring), each with ``vs_jwst``
-    (against the step's first timing, ``jwst_s``) and ``vs_jwst_interleaved``."""
+    (against the step's first timing, ``jwst_s``) and ``vs_jwst_interleaved``;
+    the ``lanes`` step built for ``unit``. ``warm``: the warm-started rows too
+    (else the constant law from scratch, the others' from scratch only)."""
 
     info = ipc_taichi.init(precision="f32")
     rows = []
@@ -165,42 +190,59 @@ def _law_rows(size, nints, ngroups, alpha, seed, repeats, step, jwst_s):
                       ("table 257x257", table_law())):
         truth, measured = _ramp(size, nints, ngroups, alpha, seed, law=law)
         groups = measured.astype(np.float32)
-        for warm in ((True,) if law is None else (False, True)):
+        starts = (False, True) if law is not None else (True,)
+        for warm_start in (starts if warm else (False,)):
             row = _time_decouple(groups, truth, law or f"constant:{alpha}", info, repeats,
-                                 warm_start=warm, step=step)
+                                 warm_start=warm_start, step=step)
             row.update(row=f"decouple, {name} ({info.arch} f32, "
-                           f"{'warm start' if warm else 'from scratch'})",
-                       law=name, warm_start=warm, vs_jwst=row["median_s"] / jwst_s)
+                           f"{'warm start' if warm_start else 'from scratch'}, "
+                           f"{_unit_name(unit)})",
+                       law=name, warm_start=warm_start, vs_jwst=row["median_s"] / jwst_s,
+                       vector_unit=unit)
             rows.append(row)
     return rows
 
 
-def _general(size, repeats):
-    """The general law (``donlon2018``) on a ``size`` x ``size`` f32 frame:
-    seconds per iteration (5 iterations less 1, so that the per-call work
-    cancels) against the streaming floor measured here, one NumPy copy."""
+def _general(size, repeats, unit):
+    """Per Jacobi iteration on a ``size`` x ``size`` f32 frame (5 iterations
+    less 1, so that the per-call work cancels), the same step with a constant
+    law, ``donlon2018`` (the general law) and the table law, interleaved, each
+    against the streaming floor measured between them (one NumPy copy); the
+    difference to the constant law is the law's evaluation. The ``lanes``
+    step built for ``unit``. ``donlon2018``'s figures at the top level."""
 
     info = ipc_taichi.init(precision="f32")
     measured = ipc_taichi.couple(uniform_frame(size).astype(np.float32))
     out = np.empty_like(measured)
-    ipc_taichi.decouple(measured[:64, :64], tol=0, max_iter=1)  # JIT outside the timing
-    per = []
+    laws = {"constant:0.0125": "constant:0.0125", "donlon2018": "donlon2018",
+            "table 257x257": table_law()}
+    for law in laws.values():  # JIT outside the timing
+        ipc_taichi.decouple(measured[:64, :64], law=law, tol=0, max_iter=1)
+    per = {name: [] for name in laws}
+    floors = []
     for _ in range(repeats):
-        t0 = time.perf_counter()
-        ipc_taichi.decouple(measured, tol=0, max_iter=5, out=out)
-        t1 = time.perf_counter()
-        ipc_taichi.decouple(measured, tol=0, max_iter=1, out=out)
-        per.append(((t1 - t0) - (time.perf_counter() - t1)) / 4)
-    floor = streaming_floor(measured.shape, np.float32)
-    iteration = statistics.median(per)
+        for name, law in laws.items():
+            per[name].append(iteration_time(measured, out, law=law))
+        floors.append(streaming_floor(measured.shape, np.float32, repeats=3))
+    floor = statistics.median(floors)
+    median = {name: statistics.median(t) for name, t in per.items()}
+    rows = [{"law": name, "iteration [ms]": median[name] * 1e3,
+             "ns per pixel": median[name] / size ** 2 * 1e9,
+             "x floor": median[name] / floor,
+             "law's cost [ns/pixel]": (median[name] - median["constant:0.0125"])
+             / size ** 2 * 1e9,
+             "spread": f"{min(per[name]) * 1e3:.1f}-{max(per[name]) * 1e3:.1f} ms"}
+            for name in laws]
     return {"size": size, "law": "donlon2018", "precision": info.precision,
-            "iteration_s": iteration, "iteration_times_s": per, "floor_s": floor,
-            "vs_floor": iteration / floor,
-            "ns_per_pixel": iteration / size ** 2 * 1e9}
+            "vector_unit": unit, "lanes": _unit_name(unit),
+            "iteration_s": median["donlon2018"], "iteration_times_s": per["donlon2018"],
+            "floor_s": floor, "floor_times_s": floors,
+            "vs_floor": median["donlon2018"] / floor,
+            "ns_per_pixel": median["donlon2018"] / size ** 2 * 1e9, "laws": rows}
 
 
 def measure_pipeline_ipc(size=PIPELINE_SIZE, nints=2, ngroups=4, alpha=0.0125, repeats=3, seed=3,
-                         precisions=("f64", "f32"), laws=True, general_size=None):
+                         precisions=("f64", "f32"), laws=True, general_size=None, units=None):
     """Time the JWST ``ipc`` step's compute and :func:`ipc_taichi.decouple`
     with the constant law on the same ramp, in this process.
 
@@ -215,7 +257,12 @@ def measure_pipeline_ipc(size=PIPELINE_SIZE, nints=2, ngroups=4, alpha=0.0125, r
         (issue 28's f32 rows, see the module docstring), ``floor_s`` (one
         NumPy copy of a ``size`` x ``size`` f32 frame) and ``general`` (the
         general law per iteration on a ``general_size`` frame, default twice
-        ``size``, against the floor there). Taichi is left in f32.
+        ``size``, against the floor there), both for the first vector unit of
+        ``units`` (default :func:`law_units`), and for each unit of ``units``
+        ``by_unit`` (``{unit: {"law_rows", "general"}}``, the further units'
+        law rows from scratch only); ``cpu``: the CPU's model and vector
+        extensions (:func:`~ipc_taichi.bench.cpu.cpu_record`). Taichi is left
+        in f32.
     """
     import logging
 
@@ -255,10 +302,17 @@ def measure_pipeline_ipc(size=PIPELINE_SIZE, nints=2, ngroups=4, alpha=0.0125, r
         row.update(row=f"decouple, constant law ({info.arch} {info.precision})",
                    vs_jwst=row["median_s"] / jwst_s)
         rows.append(row)
-    law_rows = _law_rows(size, nints, ngroups, alpha, seed, repeats, step, jwst_s) if laws else []
+    by_unit = {}
+    for k, unit in enumerate((units or law_units()) if laws else ()):
+        with engine.vector_unit_set(unit or "none"):
+            by_unit[unit] = {
+                "law_rows": _law_rows(size, nints, ngroups, alpha, seed, repeats, step, jwst_s,
+                                      unit, warm=k == 0),
+                "general": _general(general_size or 2 * size, max(repeats, 5), unit)}
+    first = next(iter(by_unit.values()), {"law_rows": [], "general": None})
     floor = streaming_floor((size, size), np.float32)
-    general = _general(general_size or 2 * size, repeats) if laws else None
     return {"size": size, "nints": nints, "ngroups": ngroups, "alpha": alpha,
             "arch": info.arch, "ratio": rows[1]["vs_jwst"], "rows": rows,
-            "law_rows": law_rows, "floor_s": floor, "jwst_per_group_s": jwst_s / len(groups),
-            "general": general}
+            "law_rows": first["law_rows"], "floor_s": floor,
+            "jwst_per_group_s": jwst_s / len(groups), "general": first["general"],
+            "by_unit": by_unit, "cpu": cpu_record()}
