@@ -13,20 +13,22 @@ Xeon (AVX-512), one thread, 2048x2048 f32, per Jacobi iteration: constant law
 
 The width
 ---------
-``L`` is one register of the CPU's widest vector unit
-(:func:`host_vector_unit`, from ``/proc/cpuinfo``'s flags,
-:func:`vector_unit`): AVX-512 16 f32 / 8 f64 pixels, AVX2 8 / 4, SSE (any
-x86-64) and NEON (64-bit ARM) 4 / 2; a CPU of none of these gets the scalar
-``sweep`` (:func:`ipc_taichi._layouts.default_layout`). ``$IPC_TAICHI_LANES``
-(:data:`LANES_ENV`) forces a unit, e.g. ``avx2`` on an AVX-512 machine to
-measure the narrower width there (an emulation: LLVM still compiles for this
-CPU). The outputs are the same bits at every width (the same operations lane
-by lane; ``tests/test_lane_width.py``). What LLVM emits on a Zen 4 (AMD EPYC)
-host, from the Taichi asm dump (``TI_PRINT_KERNEL_ASM=1``): 256-bit ``ymm``
-instructions, VEX-encoded (registers 0-15, no mask registers), for both the
-AVX-512 width (a vector is two ``ymm`` registers) and the AVX2 width (one):
-LLVM prefers 256-bit vectors on this target, so on this machine the two
-widths differ in unrolling, not in the instruction set.
+``L`` follows the CPU's widest vector unit (:func:`host_vector_unit`, from
+``/proc/cpuinfo``'s flags, :func:`vector_unit`; :data:`VECTOR_BYTES`):
+AVX-512 and AVX2 16 f32 / 8 f64 pixels (two 256-bit registers), SSE (any
+x86-64) and NEON (64-bit ARM) 8 / 4 (two 128-bit ones); a CPU of none of
+these gets the scalar ``sweep`` (:func:`ipc_taichi._layouts.default_layout`).
+``$IPC_TAICHI_LANES`` (:data:`LANES_ENV`) forces a unit or a width, e.g.
+``8`` (one AVX2 register) on this machine to measure it (an emulation: LLVM
+still compiles for this CPU). The outputs are the same bits at every width
+(the same operations lane by lane; ``tests/test_lane_width.py``).
+
+What LLVM emits on a Zen 4 (AMD EPYC) host, from the Taichi asm dump
+(``TI_PRINT_KERNEL_ASM=1``): 256-bit ``ymm`` instructions, VEX-encoded
+(registers 0-15, no mask registers, no AVX-512-only instruction), for 16
+lanes (a vector is two ``ymm`` registers) as for 8 (one): LLVM prefers
+256-bit vectors on this target. The 16-lane step is therefore AVX2 code that
+an AVX2-only CPU runs as it is.
 
 The arrays
 ----------
@@ -78,18 +80,29 @@ from ._alpha import make_alpha
 from ._stepparts import law_functions
 from .errors import IPCInputError
 
-__all__ = ["LANES_ENV", "VECTOR_BYTES", "VECTOR_FLAGS", "ALIGN", "vector_unit",
+__all__ = ["LANES_ENV", "VECTOR_BYTES", "LANE_COUNTS", "VECTOR_FLAGS", "ALIGN", "vector_unit",
            "host_vector_unit", "vector_extensions", "forget_vector_unit", "lane_count",
            "padded_width", "aligned_zeros", "lanes_kernel", "position_type"]
 
 LANES_ENV = "IPC_TAICHI_LANES"
 """The environment variable that names the vector unit to compile for
 (``avx512``, ``avx2``, ``sse``, ``neon``; ``none``: no ``lanes`` step, the
-``sweep`` instead; unset or ``auto``: this CPU's, :func:`host_vector_unit`)."""
+``sweep`` instead; unset or ``auto``: this CPU's, :func:`host_vector_unit`),
+or a width in f32 lanes (:data:`LANE_COUNTS`)."""
 
-VECTOR_BYTES = {"avx512": 64, "avx2": 32, "sse": 16, "neon": 16}
-"""Bytes of one vector register of each vector unit: a ``lanes`` vector is
-one register (AVX-512: 16 f32 / 8 f64 pixels; AVX2: 8 / 4; SSE, NEON: 4 / 2)."""
+VECTOR_BYTES = {"avx512": 64, "avx2": 64, "sse": 32, "neon": 32}
+"""Bytes of one ``lanes`` vector for each vector unit: two 256-bit registers
+on AVX2 and AVX-512 (16 f32 / 8 f64 pixels), two 128-bit ones on SSE and NEON
+(8 / 4). Two, not one: on a Zen 4 host LLVM compiles the 16-lane vectors as
+two ``ymm`` registers with AVX2 instructions, and the two independent chains
+hide the exponential's latency: ``donlon2018`` costs 11.2-11.5 ms of CPU per
+iteration at 2048x2048 f32 with 16 lanes, 16.3-17.6 ms with 8 (one ``ymm``),
+the table law 22.7-24.6 against 21.9-23.4 ms, the constant law the same
+(docs/performance.md, "Issue 39"). A number of f32 lanes (4, 8, 16) in
+``$IPC_TAICHI_LANES`` forces that width."""
+
+LANE_COUNTS = ("4", "8", "16")
+"""The f32 lane counts ``$IPC_TAICHI_LANES`` may name (f64: half)."""
 
 ALIGN = 64
 """Bytes every ``lanes`` array starts on (the widest vector's natural alignment)."""
@@ -150,9 +163,10 @@ def host_vector_unit():
         return vector_unit(_cpu_flags(), platform.machine())
     if name == "none":
         return None
-    if name not in VECTOR_BYTES:
+    if name not in VECTOR_BYTES and name not in LANE_COUNTS:
         raise IPCInputError(f"unknown vector unit {name!r} in ${LANES_ENV}; choose one of "
-                            f"auto, {', '.join(VECTOR_BYTES)}, none")
+                            f"auto, {', '.join(VECTOR_BYTES)}, none, or f32 lanes "
+                            f"{', '.join(LANE_COUNTS)}")
     return name
 
 
@@ -162,10 +176,12 @@ def forget_vector_unit():
 
 
 def lane_count(precision, unit=None):
-    """Pixels per ``lanes`` vector in ``precision``: one register of ``unit``
-    (default :func:`host_vector_unit`; with none, the SSE width)."""
+    """Pixels per ``lanes`` vector in ``precision`` for ``unit`` (a vector
+    unit of :data:`VECTOR_BYTES` or an f32 lane count of :data:`LANE_COUNTS`;
+    default :func:`host_vector_unit`; with none, the SSE width)."""
     unit = unit or host_vector_unit() or "sse"
-    return VECTOR_BYTES[unit] // (8 if precision == "f64" else 4)
+    size = int(unit) * 4 if unit in LANE_COUNTS else VECTOR_BYTES[unit]
+    return size // (8 if precision == "f64" else 4)
 
 
 def padded_width(width, reach, precision):

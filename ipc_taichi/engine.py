@@ -146,7 +146,8 @@ def reduction_fan_in(n):
 @contextlib.contextmanager
 def vector_unit_set(name):
     """Inside the context, ``$IPC_TAICHI_LANES`` is ``name`` (``avx512``,
-    ``avx2``, ``sse``, ``neon``, ``none``; ``None``: unset, this CPU's own):
+    ``avx2``, ``sse``, ``neon``, ``none``, or f32 lanes ``4``, ``8``, ``16``;
+    ``None``: unset, this CPU's own):
     the ``lanes`` step is built for that vector unit's width. Kernels and
     workspaces are rebuilt on entry and exit; the variable is put back."""
     old = os.environ.get(LANES_ENV)

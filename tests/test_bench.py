@@ -162,8 +162,8 @@ def test_row_beside_the_jwst_ipc_step(cpu):
 
     pytest.importorskip("jwst", reason=optional("jwst"))  # the row beside jwst's own ipc step
     try:
-        # the law rows for one vector unit, the SSE width (small kernels to compile)
-        result = measure_pipeline_ipc(size=64, nints=1, ngroups=2, repeats=1, units=["sse"],
+        # the law rows for one width, 4 f32 lanes (small kernels to compile)
+        result = measure_pipeline_ipc(size=64, nints=1, ngroups=2, repeats=1, units=["4"],
                                       general_size=64)
     finally:
         runtime.init("cpu", "f64")  # it leaves Taichi in f32
@@ -178,11 +178,11 @@ def test_row_beside_the_jwst_ipc_step(cpu):
     assert "jwst ipc step" in text and f"{f32['vs_jwst']:.2f}x" in text
     # the CPU recorded; the law rows and the per-iteration rows at the unit asked for
     assert result["cpu"]["model"] and "CPU: " in text
-    assert list(result["by_unit"]) == ["sse"]
-    laws = result["by_unit"]["sse"]["law_rows"]
+    assert list(result["by_unit"]) == ["4"]
+    laws = result["by_unit"]["4"]["law_rows"]
     assert [r["law"] for r in laws] == ["constant:0.0125", "donlon2018", "donlon2018",
                                         "table 257x257", "table 257x257"]
-    assert all("sse, 4 lanes" in r["row"] and r["row"] in text for r in laws)
+    assert all(r["row"].endswith(", 4 lanes)") and r["row"] in text for r in laws)
     general = result["general"]["laws"]
     assert [r["law"] for r in general] == ["constant:0.0125", "donlon2018", "table 257x257"]
     assert general[0]["law's cost [ns/pixel]"] == 0 and all(r["x floor"] > 0 for r in general)

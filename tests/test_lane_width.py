@@ -1,7 +1,8 @@
 """The ``lanes`` step's vector width, chosen from the CPU's vector extensions
-(``ipc_taichi/_lanes.py``: AVX-512 16 f32 / 8 f64 pixels, AVX2 8 / 4, SSE and
-NEON 4 / 2, none: the scalar ``sweep``) or forced by ``$IPC_TAICHI_LANES``;
-and the step's outputs bit for bit the same at every width."""
+(``ipc_taichi/_lanes.py``: AVX-512 and AVX2 16 f32 / 8 f64 pixels, two
+256-bit registers; SSE and NEON 8 / 4, two 128-bit ones; none: the scalar
+``sweep``) or forced by ``$IPC_TAICHI_LANES``; and the step's outputs bit for
+bit the same at every width."""
 
 import numpy as np
 import pytest
@@ -19,10 +20,10 @@ GRAVITON = "fp asimd evtstrm aes pmull sha1 sha2 crc32 atomics fphp asimdhp cpui
 
 @pytest.mark.parametrize("flags, machine, unit, f32, f64", [
     (ZEN4, "x86_64", "avx512", 16, 8),
-    (HASWELL, "x86_64", "avx2", 8, 4),
-    (OLD_X86, "x86_64", "sse", 4, 2),
-    (GRAVITON, "aarch64", "neon", 4, 2),
-    ("", "arm64", "neon", 4, 2),
+    (HASWELL, "x86_64", "avx2", 16, 8),
+    (OLD_X86, "x86_64", "sse", 8, 4),
+    (GRAVITON, "aarch64", "neon", 8, 4),
+    ("", "arm64", "neon", 8, 4),
 ])
 def test_width_follows_the_vector_extensions(flags, machine, unit, f32, f64):
     assert vector_unit(flags.split(), machine) == unit
@@ -48,15 +49,17 @@ def test_no_vector_unit_gets_the_sweep(cpu):
 
 
 def test_width_forced_by_the_environment():
-    for name, f32 in (("avx2", 8), ("AVX512", 16), (" sse ", 4), ("neon", 4)):
+    for name, f32 in (("avx2", 16), ("AVX512", 16), (" sse ", 8), ("neon", 8), ("8", 8),
+                      ("4", 4)):
         with engine.vector_unit_set(name):
             assert lane_count("f32") == f32 and lane_count("f64") == f32 // 2
             # rows of whole vectors: 10 + 2 border columns
             assert engine.kernel_layout("lanes").padded_shape((3, 10), 1, "f32") == \
                 (5, -(-12 // f32) * f32)
-    with engine.vector_unit_set("avx1024"), \
-            pytest.raises(ipc_taichi.IPCInputError, match=f"avx1024.*{LANES_ENV}"):
-        host_vector_unit()
+    for bad in ("avx1024", "12"):
+        with engine.vector_unit_set(bad), \
+                pytest.raises(ipc_taichi.IPCInputError, match=f"{bad}.*{LANES_ENV}"):
+            host_vector_unit()
 
 
 def _outputs(frame, **kw):
@@ -84,13 +87,13 @@ def _assert_same(out, what):
         assert sweep[2:] == got[2:], (unit, what)
 
 
-def test_avx2_width_bit_identical_to_the_sweep(cpu):
-    """f64 (4 pixels a vector at the AVX2 width): a frame whose rows end inside
-    a vector, a bad pixel, ``donlon2018``."""
+def test_one_avx2_register_bit_identical_to_the_sweep(cpu):
+    """f64 (4 pixels a vector at one AVX2 register's width): a frame whose rows
+    end inside a vector, a bad pixel, ``donlon2018``."""
     rng = np.random.default_rng(3)
     frame = rng.uniform(0, 60000, (9, 13))
     frame[4, 12] = np.nan
-    _assert_same(_at_widths(frame, ["avx2"]), "donlon2018, NaN")
+    _assert_same(_at_widths(frame, ["8"]), "donlon2018, NaN")
 
 
 TABLE = dict(kernel_reference.cases())["table_nearest"]["law"]
@@ -108,7 +111,7 @@ def test_every_width_bit_identical_to_the_sweep(cpu, precision):
         ipc_taichi.init("cpu", precision)
         for kw in (dict(), dict(law=TABLE, geometry=FULL, edge="isolated"),
                    dict(law="constant:0.013")):
-            out = _at_widths(frame, ["avx512", "avx2", "sse"], precision=precision,
+            out = _at_widths(frame, ["16", "8", "4"], precision=precision,
                              **kw)
             _assert_same(out, kw)
     finally:

@@ -28,9 +28,8 @@ one NumPy copy of a frame, :func:`streaming_floor`); and the general law on a
 Issue 39's rows: the CPU's model and vector extensions recorded with the
 result (``cpu``), and the f32 law rows and the per-iteration rows measured
 for each vector unit of ``units`` (default :func:`law_units`: this CPU's, and
-AVX2's width on an AVX-512 CPU, where it is an emulation: LLVM compiles for
-this CPU, see docs/performance.md), the ``lanes`` step built for that unit's
-width (:func:`ipc_taichi.engine.vector_unit_set`). Per iteration
+one AVX2 register's width on an AVX2 or AVX-512 CPU), the ``lanes`` step
+built for that unit's width (:func:`ipc_taichi.engine.vector_unit_set`). Per iteration
 (``general``), the same step with a constant law, ``donlon2018`` and the
 table law: the difference to the constant law is the law's evaluation.
 """
@@ -168,14 +167,18 @@ def _time_decouple(groups, truth, law, info, repeats, warm_start=False, step=Non
 
 def law_units():
     """The vector units the law rows are measured for: this CPU's (``None``
-    where it has none the ``lanes`` step is built for), and AVX2's on an
-    AVX-512 CPU (the narrower width, emulated)."""
+    where it has none the ``lanes`` step is built for), and on an AVX2 or
+    AVX-512 CPU (whose ``lanes`` vector is two 256-bit registers) the width of
+    one AVX2 register, ``"8"`` f32 lanes."""
     unit = engine.host_vector_unit()
-    return [unit, "avx2"] if unit == "avx512" else [unit]
+    return [unit, "8"] if unit in ("avx512", "avx2") else [unit]
 
 
 def _unit_name(unit):
-    return f"{unit}, {engine.lane_count('f32', unit)} lanes" if unit else "sweep"
+    if not unit:
+        return "sweep"
+    lanes = f"{engine.lane_count('f32', unit)} lanes"
+    return lanes if unit.isdigit() else f"{unit}, {lanes}"
 
 
 def _law_rows(size, nints, ngroups, alpha, seed, repeats, step, jwst_s, unit, warm=True):
