@@ -172,6 +172,7 @@ def test_row_beside_the_jwst_ipc_step(cpu):
     assert result["ratio"] == f64["vs_jwst"] == f64["median_s"] / step["median_s"]
     for ours in (f64, f32):
         assert step["median_s"] > 0 and ours["median_s"] > 0
+        assert ours["vs_jwst_cpu"] > 0 and ours["threads"] >= 1
         assert ours["iterations"] and max(ours["iterations"]) <= 20
         assert 0 < ours["max_error"] < step["max_error"] / 5
     text = render_pipeline(result)

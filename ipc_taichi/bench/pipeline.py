@@ -34,6 +34,7 @@ built for that unit's width (:func:`ipc_taichi.engine.vector_unit_set`). Per ite
 table law: the difference to the constant law is the law's evaluation.
 """
 
+import os
 import statistics
 import time
 
@@ -139,10 +140,13 @@ def _time_decouple(groups, truth, law, info, repeats, warm_start=False, step=Non
     groups, one stack) with ``law`` in the running precision; a row dict
     (``median_s``, ``times_s``, ``max_error`` over the science pixels,
     ``iterations``: the distinct counts, ``total_iterations``). With ``step``
-    (a callable returning the JWST step's compute time), the step is timed
-    before each run, interleaved, and ``vs_jwst_interleaved`` is the ratio of
-    the two medians: on a machine shared with other work both see the same
-    load."""
+    (a callable returning the JWST step's compute time and its CPU time), the
+    step is timed before each run, interleaved, and ``vs_jwst_interleaved`` is
+    the ratio of the two medians: on a machine shared with other work both see
+    the same load; ``vs_jwst_cpu``: the ratio of the CPU times, ours over the
+    threads it ran on (the step runs on one), what an idle machine shows
+    where the threads scale (on a loaded one, two threads and one do not see
+    the same machine)."""
 
     b = NIRCAM_BORDER
     science = (slice(None), slice(b, -b), slice(b, -b))
@@ -151,14 +155,21 @@ def _time_decouple(groups, truth, law, info, repeats, warm_start=False, step=Non
     ipc_taichi.decouple(groups[:2, :64, :64], **run)  # JIT outside the timing
     infos = []
 
+    cpu = []
+
     def ours():
+        c0 = time.process_time()
         infos[:] = ipc_taichi.decouple(groups, out=out, full_output=True, **run)[1]
+        cpu.append(time.process_time() - c0)
 
     steps = []
     median, times = _median(ours, repeats, None if step is None else
                             lambda: steps.append(step()))
-    extra = {} if step is None else {"jwst_times_s": steps,
-                                     "vs_jwst_interleaved": median / statistics.median(steps)}
+    threads = info.threads or os.cpu_count()
+    extra = {} if step is None else {
+        "jwst_times_s": [t for t, _ in steps], "cpu_s": cpu, "threads": threads,
+        "vs_jwst_interleaved": median / statistics.median(t for t, _ in steps),
+        "vs_jwst_cpu": statistics.median(cpu) / threads / statistics.median(c for _, c in steps)}
     return {**extra, "median_s": median, "times_s": times,
             "max_error": float(np.abs(out - truth)[science].max()),
             "iterations": sorted({i.iterations for i in infos}),
@@ -284,9 +295,9 @@ def measure_pipeline_ipc(size=PIPELINE_SIZE, nints=2, ngroups=4, alpha=0.0125, r
 
     def step():
         reload()
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         ipc_corr.ipc_correction(model, ipc_model)
-        return time.perf_counter() - t0
+        return time.perf_counter() - t0, time.process_time() - c0
 
     logging.getLogger("jwst").setLevel(logging.WARNING)
     jwst_s, jwst_times = _median(lambda: ipc_corr.ipc_correction(model, ipc_model), repeats,

@@ -207,9 +207,9 @@ def render_pipeline(result):
              "decoupler (converged) at most 0.35x the step's time with the constant law, "
              "0.8x with `donlon2018` and with a 257x257 table law (issue 28's, before: 0.5x, "
              "1.0x, 1.0x; f64 constant 0.8x).", ""] + _cpu_lines(result) + [
-             "| method | median [s] | x the jwst step | x the step, interleaved | max error [e-] "
-             "| iterations |",
-             "|---|---:|---:|---:|---:|---|"]
+             "| method | median [s] | x the jwst step | x the step, interleaved "
+             "| x the step, CPU time / threads | max error [e-] | iterations |",
+             "|---|---:|---:|---:|---:|---:|---|"]
     by_unit = result.get("by_unit") or {None: {"law_rows": result.get("law_rows", [])}}
     for r in result["rows"] + [r for u in by_unit.values() for r in u["law_rows"]]:
         its = ", ".join(str(i) for i in r.get("iterations", [])) or "1 pass"
@@ -217,11 +217,15 @@ def render_pipeline(result):
             its += f" ({r['total_iterations']} in all)"
         ratio = f"{r['vs_jwst']:.2f}x" if "vs_jwst" in r else ""
         mixed = f"{r['vs_jwst_interleaved']:.2f}x" if "vs_jwst_interleaved" in r else ""
-        lines.append(f"| {r['row']} | {r['median_s']:.3f} | {ratio} | {mixed} | "
+        cpu = f"{r['vs_jwst_cpu']:.2f}x" if "vs_jwst_cpu" in r else ""
+        lines.append(f"| {r['row']} | {r['median_s']:.3f} | {ratio} | {mixed} | {cpu} | "
                      f"{r['max_error']:.3g} | {its} |")
     lines += ["", "- x the jwst step: the median against the step's median timed first; "
               "interleaved: against the step timed before each run of the row (the ratio of "
-              "the two medians; both see the same load on a shared machine)."]
+              "the two medians; both see the same load on a shared machine); CPU time / "
+              "threads: our CPU time over the threads it ran on against the step's (one "
+              "thread), medians of the same runs: what an idle machine shows where the "
+              "threads scale (under load two threads and one do not see the same machine)."]
     lines += _pipeline_floor(result)
     return "\n".join(lines) + "\n"
 
