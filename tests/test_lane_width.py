@@ -100,8 +100,9 @@ TABLE = dict(kernel_reference.cases())["table_nearest"]["law"]
 FULL = ipc_taichi.Geometry.terms(horizontal=1.0, vertical=0.7, diagonal=0.2, second=0.05)
 
 
-# slow: every width compiles its own kernels (tens of seconds in f32 on a
-# 2-core AMD EPYC)
+# slow: every width compiles its own kernels (about 280 s for both precisions at
+# 16, 8 and 4 lanes on a loaded 2-core AMD EPYC); the default width, 16 in f32, is
+# tests/test_lanes_layout.py's and the recorded digests'
 @pytest.mark.slow
 @pytest.mark.parametrize("precision", ["f64", "f32"])
 def test_every_width_bit_identical_to_the_sweep(cpu, precision):
@@ -111,7 +112,7 @@ def test_every_width_bit_identical_to_the_sweep(cpu, precision):
         ipc_taichi.init("cpu", precision)
         for kw in (dict(), dict(law=TABLE, geometry=FULL, edge="isolated"),
                    dict(law="constant:0.013")):
-            out = _at_widths(frame, ["16", "8", "4"], precision=precision,
+            out = _at_widths(frame, ["8", "4"], precision=precision,
                              **kw)
             _assert_same(out, kw)
     finally:

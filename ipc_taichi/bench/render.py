@@ -168,7 +168,8 @@ def _floor_text(results):
                        f"{pair:.2f} ns, streaming one pixel's bytes {stream:.2f} ns; the "
                        f"alphas alone cost **{bound[prec]:.1f} ns per pixel and iteration** "
                        f"in scalar code (one alpha at a time, as the `sweep` layout; the "
-                       f"CPU's default `lanes` layout evaluates 8 (f64) or 16 (f32) at once).")
+                       f"CPU's default `lanes` layout evaluates 16 (f32) or 8 (f64) at once "
+                       f"on AVX2 and AVX-512, 8 or 4 on SSE and NEON).")
         out.append(f"- NumPy (one thread, SIMD exp where it has it): one pair alpha "
                    f"{measured['numpy_pair_ns']:.2f} ns.")
     h = floor["h100"]
@@ -271,6 +272,6 @@ def _cpu_lines(result):
         return []
     return [f"CPU: {cpu['model']}; vector extensions {' '.join(cpu['vector_extensions'])}; "
             f"the `lanes` step built for {cpu['vector_unit'] or 'none (the sweep)'} unless a "
-            "row names another vector unit (a narrower one on this CPU is an emulation: "
-            "LLVM compiles for this CPU). Load average when the section ended: "
+            "row names another width (forced by `IPC_TAICHI_LANES`: LLVM still compiles for "
+            "this CPU). Load average when the section ended: "
             f"{', '.join(str(v) for v in cpu['load_average'])}.", ""]
