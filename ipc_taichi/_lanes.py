@@ -7,10 +7,28 @@ each store (the pointer lives in memory a float store might alias, to LLVM).
 A Taichi vector, compiled with ``real_matrix_scalarize=False`` (set by
 :func:`ipc_taichi.runtime.init` on the CPU), is one LLVM vector value: an
 array whose elements are vectors of ``L`` pixels is read and written by one
-vector load and store, and arithmetic on it is SIMD (AVX-512: ``L`` = 16 in
-f32, 8 in f64, :data:`LANES`). Measured on a 2-core Xeon (AVX-512), one
-thread, 2048x2048 f32, per Jacobi iteration: constant law 8.4 -> 2.9 ms,
-``donlon2018`` 52 -> 12 ms.
+vector load and store, and arithmetic on it is SIMD. Measured on a 2-core
+Xeon (AVX-512), one thread, 2048x2048 f32, per Jacobi iteration: constant law
+8.4 -> 2.9 ms, ``donlon2018`` 52 -> 12 ms.
+
+The width
+---------
+``L`` follows the CPU's widest vector unit (:func:`host_vector_unit`, from
+``/proc/cpuinfo``'s flags, :func:`vector_unit`; :data:`VECTOR_BYTES`):
+AVX-512 and AVX2 16 f32 / 8 f64 pixels (two 256-bit registers), SSE (any
+x86-64) and NEON (64-bit ARM) 8 / 4 (two 128-bit ones); a CPU of none of
+these gets the scalar ``sweep`` (:func:`ipc_taichi._layouts.default_layout`).
+``$IPC_TAICHI_LANES`` (:data:`LANES_ENV`) forces a unit or a width, e.g.
+``8`` (one AVX2 register) on this machine to measure it (an emulation: LLVM
+still compiles for this CPU). The outputs are the same bits at every width
+(the same operations lane by lane; ``tests/test_lane_width.py``).
+
+What LLVM emits on a Zen 4 (AMD EPYC) host, from the Taichi asm dump
+(``TI_PRINT_KERNEL_ASM=1``): 256-bit ``ymm`` instructions, VEX-encoded
+(registers 0-15, no mask registers, no AVX-512-only instruction), for 16
+lanes (a vector is two ``ymm`` registers) as for 8 (one): LLVM prefers
+256-bit vectors on this target. The 16-lane step is therefore AVX2 code that
+an AVX2-only CPU runs as it is.
 
 The arrays
 ----------
@@ -52,23 +70,123 @@ time): unary minus, ``ti.abs``, ``ti.exp``, casts and bit casts; the code
 below uses ``0 - x``, compares and selects instead.
 """
 
+import functools
+import os
+import platform
+
 import numpy as np
 
 from ._alpha import make_alpha
 from ._stepparts import law_functions
+from .errors import IPCInputError
 
-__all__ = ["LANES", "ALIGN", "padded_width", "aligned_zeros", "lanes_kernel", "position_type"]
+__all__ = ["LANES_ENV", "VECTOR_BYTES", "LANE_COUNTS", "VECTOR_FLAGS", "ALIGN", "vector_unit",
+           "host_vector_unit", "vector_extensions", "forget_vector_unit", "lane_count",
+           "padded_width", "aligned_zeros", "lanes_kernel", "position_type"]
 
-LANES = {"f64": 8, "f32": 16}
-"""Pixels per vector: 64 bytes (one AVX-512 register, two AVX2 ones)."""
+LANES_ENV = "IPC_TAICHI_LANES"
+"""The environment variable that names the vector unit to compile for
+(``avx512``, ``avx2``, ``sse``, ``neon``; ``none``: no ``lanes`` step, the
+``sweep`` instead; unset or ``auto``: this CPU's, :func:`host_vector_unit`),
+or a width in f32 lanes (:data:`LANE_COUNTS`)."""
+
+VECTOR_BYTES = {"avx512": 64, "avx2": 64, "sse": 32, "neon": 32}
+"""Bytes of one ``lanes`` vector for each vector unit: two 256-bit registers
+on AVX2 and AVX-512 (16 f32 / 8 f64 pixels), two 128-bit ones on SSE and NEON
+(8 / 4). Two, not one: on a Zen 4 host LLVM compiles the 16-lane vectors as
+two ``ymm`` registers with AVX2 instructions, and the two independent chains
+hide the exponential's latency: ``donlon2018`` costs 11.2-11.5 ms of CPU per
+iteration at 2048x2048 f32 with 16 lanes, 16.3-17.6 ms with 8 (one ``ymm``),
+the table law 22.7-24.6 against 21.9-23.4 ms, the constant law the same
+(docs/performance.md, "Issue 39"). A number of f32 lanes (4, 8, 16) in
+``$IPC_TAICHI_LANES`` forces that width."""
+
+LANE_COUNTS = ("4", "8", "16")
+"""The f32 lane counts ``$IPC_TAICHI_LANES`` may name (f64: half)."""
 
 ALIGN = 64
-"""Bytes every ``lanes`` array starts on (a vector's natural alignment)."""
+"""Bytes every ``lanes`` array starts on (the widest vector's natural alignment)."""
+
+
+def vector_unit(flags, machine):
+    """The widest vector unit of a CPU that the ``lanes`` step is built for,
+    from its feature flags (``/proc/cpuinfo``'s ``flags`` on x86, ``Features``
+    on ARM) and its machine name (:func:`platform.machine`): ``"avx512"``
+    (``avx512f``), ``"avx2"``, ``"sse"`` (any other x86-64: SSE2 is part of
+    it), ``"neon"`` (64-bit ARM: Advanced SIMD is part of it), else ``None``
+    (no ``lanes`` step: the engine runs the scalar ``sweep``)."""
+    flags = {f.lower() for f in flags}
+    machine = machine.lower()
+    if machine in ("x86_64", "amd64", "x64"):
+        if "avx512f" in flags:
+            return "avx512"
+        return "avx2" if "avx2" in flags else "sse"
+    if machine in ("aarch64", "arm64"):
+        return "neon"
+    return None
+
+
+def _cpu_flags():
+    """This CPU's feature flags from ``/proc/cpuinfo`` (empty where there is none)."""
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                key, _, value = line.partition(":")
+                if key.strip().lower() in ("flags", "features"):
+                    return value.split()
+    except OSError:
+        pass
+    return []
+
+
+VECTOR_FLAGS = ("sse2", "sse4_2", "avx", "avx2", "fma", "avx512f", "avx512vl", "avx512bw",
+                "asimd", "sve")
+"""The feature flags :func:`vector_extensions` reports."""
+
+
+def vector_extensions():
+    """This CPU's vector extensions among :data:`VECTOR_FLAGS` (what a CPU
+    number is recorded with)."""
+    flags = set(_cpu_flags())
+    return [f for f in VECTOR_FLAGS if f in flags]
+
+
+@functools.cache
+def host_vector_unit():
+    """The vector unit the ``lanes`` step is built for in this process:
+    ``$IPC_TAICHI_LANES`` where set (e.g. ``avx2`` on an AVX-512 machine, to
+    measure the narrower width), else :func:`vector_unit` of this CPU. Read
+    once; :func:`forget_vector_unit` (called when kernels and workspaces are
+    cleared) makes the next call read it again."""
+    name = os.environ.get(LANES_ENV, "").strip().lower()
+    if name in ("", "auto"):
+        return vector_unit(_cpu_flags(), platform.machine())
+    if name == "none":
+        return None
+    if name not in VECTOR_BYTES and name not in LANE_COUNTS:
+        raise IPCInputError(f"unknown vector unit {name!r} in ${LANES_ENV}; choose one of "
+                            f"auto, {', '.join(VECTOR_BYTES)}, none, or f32 lanes "
+                            f"{', '.join(LANE_COUNTS)}")
+    return name
+
+
+def forget_vector_unit():
+    """Make :func:`host_vector_unit` read the environment and the CPU again."""
+    host_vector_unit.cache_clear()
+
+
+def lane_count(precision, unit=None):
+    """Pixels per ``lanes`` vector in ``precision`` for ``unit`` (a vector
+    unit of :data:`VECTOR_BYTES` or an f32 lane count of :data:`LANE_COUNTS`;
+    default :func:`host_vector_unit`; with none, the SSE width)."""
+    unit = unit or host_vector_unit() or "sse"
+    size = int(unit) * 4 if unit in LANE_COUNTS else VECTOR_BYTES[unit]
+    return size // (8 if precision == "f64" else 4)
 
 
 def padded_width(width, reach, precision):
     """Columns of a padded row: ``width + 2 * reach`` rounded up to whole vectors."""
-    lanes = LANES[precision]
+    lanes = lane_count(precision)
     return -(-(width + 2 * reach) // lanes) * lanes
 
 
@@ -104,7 +222,7 @@ def _pair_functions(plan):
 
     config = plan.config
     offsets, r, vertical = config.offsets, config.reach, config.vertical
-    lanes = LANES[config.precision]
+    lanes = lane_count(config.precision)
     real = ti.f64 if config.precision == "f64" else ti.f32
     slots, depth = max(1, len(vertical)), config.ring_depth
     constant, gated, mapped = config.law_kind == "constant", config.uses_ok, config.mapped
@@ -188,7 +306,7 @@ def _vector_functions(plan):
 
     config = plan.config
     offsets, r, vertical = config.offsets, config.reach, config.vertical
-    lanes = LANES[config.precision]
+    lanes = lane_count(config.precision)
     real = ti.f64 if config.precision == "f64" else ti.f32
     gated = config.uses_ok
     shifted, pair, ring_row, combined_flow = _pair_functions(plan)
@@ -292,7 +410,7 @@ def lanes_kernel(plan, spread):
     import taichi as ti
 
     config = plan.config
-    r, lanes = config.reach, LANES[config.precision]
+    r, lanes = config.reach, lane_count(config.precision)
     real = ti.f64 if config.precision == "f64" else ti.f32
     vectors = ti.types.ndarray(dtype=ti.types.vector(lanes, real), ndim=1)
     scalars = ti.types.ndarray(dtype=real, ndim=1)

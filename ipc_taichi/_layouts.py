@@ -30,7 +30,14 @@ import numpy as np
 
 from . import _kernels, runtime
 from ._kernels import SPREAD, pixel_kernel, sweep_kernel, tree_rows
-from ._lanes import LANES, aligned_zeros, lanes_kernel, padded_width
+from ._lanes import (
+    aligned_zeros,
+    forget_vector_unit,
+    host_vector_unit,
+    lane_count,
+    lanes_kernel,
+    padded_width,
+)
 from .errors import IPCInputError
 
 __all__ = ["Layout", "kernel_layout", "default_layout", "LAYOUTS", "StepPlan", "get_step_kernel",
@@ -184,7 +191,7 @@ class Lanes(Layout):
                                 "'sweep' or 'pixel'")
 
     def carried(self, config, dy, dx):
-        return LANES[config.precision] if dy == 0 else 0  # one vector per pair along the row
+        return lane_count(config.precision) if dy == 0 else 0  # one vector per pair along the row
 
     def padded_shape(self, shape, reach, precision):
         return shape[0] + 2 * reach, padded_width(shape[1], reach, precision)
@@ -193,7 +200,11 @@ class Lanes(Layout):
         return aligned_zeros(shape, dtype, fill)
 
     def arguments(self, ws, config, src, base, dst, table, bonds):
-        lanes = LANES[config.precision]
+        lanes = lane_count(config.precision)
+        # the width changed since the workspace was made, without engine.clear_kernels()
+        if ws.measured.shape[-1] != padded_width(ws.shape[1], ws.reach, config.precision):
+            raise RuntimeError(f"a workspace built for another lane width than {lanes}: "
+                               "call ipc_taichi.engine.clear_kernels() after changing it")
         ok = ws.ok_array() if config.uses_ok else ws.no_ok
         src, base, dst, ok, ring = (_flat(a).reshape(-1, lanes)
                                     for a in (src, ws.measured, dst, ok, ws.ring))
@@ -206,7 +217,7 @@ class Lanes(Layout):
         wide = aligned_zeros((n, py, padded_width(px - 2 * reach, reach, precision)),
                              padded.dtype)
         wide[:, :, :px] = padded
-        return wide.reshape(-1, LANES[precision])
+        return wide.reshape(-1, lane_count(precision))
 
     def kernel(self, plan):
         return lanes_kernel(plan, SPREAD)
@@ -225,11 +236,13 @@ def kernel_layout(name):
 
 def default_layout(arch, device_buffers=False):
     """The name of the layout that suits ``arch``: ``lanes`` on the CPU (host
-    arrays), ``sweep`` for host arrays handled as device buffers (the test
-    path), ``pixel`` on CUDA."""
+    arrays) where it has a vector unit the ``lanes`` step is built for
+    (:func:`~ipc_taichi._lanes.host_vector_unit`), else ``sweep``; ``sweep``
+    for host arrays handled as device buffers (the test path), ``pixel`` on
+    CUDA."""
     if arch == "cuda":
         return Pixel.name
-    return Sweep.name if device_buffers else Lanes.name
+    return Sweep.name if device_buffers or host_vector_unit() is None else Lanes.name
 
 
 # --------------------------------------------------------------------------- the plan
@@ -321,9 +334,12 @@ def get_step_kernel(config):
 
 
 def clear_kernels():
-    """Forget every compiled kernel (the step kernels and the frame kernels)."""
+    """Forget every compiled kernel (the step kernels and the frame kernels)
+    and the vector unit chosen (``$IPC_TAICHI_LANES`` is read again)."""
     get_step_kernel.cache_clear()
     _kernels._clear_caches()
+    forget_vector_unit()
 
 
 runtime.on_reset(get_step_kernel.cache_clear)
+runtime.on_reset(forget_vector_unit)

@@ -24,15 +24,19 @@ Kernels
     :class:`StepPlan`, :func:`get_step_kernel`, :func:`get_frame_kernels`,
     :func:`get_reduce_kernel`, :func:`tree_rows`, :data:`FAN_IN`; the device law
     (:func:`make_alpha`, :func:`make_exp`, :func:`kernel_law_kind`);
-    :func:`clear_kernels`.
+    :func:`clear_kernels`; the ``lanes`` step's vector unit (:func:`vector_unit`
+    of a CPU's flags, :func:`host_vector_unit` of this one or
+    ``$IPC_TAICHI_LANES``, :func:`lane_count`, :func:`vector_extensions`).
 Settings for a while
     Context managers that change one of the engine's layout constants and put
     it back: :func:`device_buffers` (the CUDA code path, run on the CPU),
-    :func:`pixel_runs`, :func:`reduction_fan_in`, and :func:`step_kernels_built`
+    :func:`pixel_runs`, :func:`reduction_fan_in`, :func:`vector_unit_set` (the
+    ``lanes`` step built for another vector unit), and :func:`step_kernels_built`
     (which step kernels a call asked for).
 """
 
 import contextlib
+import os
 
 from . import _engine, _kernels, _layouts
 from ._alpha import kernel_law_kind, make_alpha, make_exp
@@ -57,7 +61,8 @@ from ._engine import (
     workspace_cache_info,
 )
 from ._kernels import FAN_IN, KernelConfig, get_frame_kernels, get_reduce_kernel, tree_rows
-from ._layouts import LAYOUTS, StepPlan, get_step_kernel, kernel_layout
+from ._lanes import LANES_ENV, host_vector_unit, lane_count, vector_extensions, vector_unit
+from ._layouts import LAYOUTS, StepPlan, default_layout, get_step_kernel, kernel_layout
 
 __all__ = [
     # workspaces
@@ -72,8 +77,10 @@ __all__ = [
     "LAYOUTS", "kernel_layout",
     "tree_rows",
     "FAN_IN", "make_alpha", "make_exp", "kernel_law_kind", "clear_kernels",
+    "default_layout", "LANES_ENV", "vector_unit", "host_vector_unit", "lane_count",
+    "vector_extensions",
     # settings for a while
-    "device_buffers", "pixel_runs", "reduction_fan_in", "step_kernels_built",
+    "device_buffers", "pixel_runs", "reduction_fan_in", "vector_unit_set", "step_kernels_built",
 ]
 
 
@@ -134,6 +141,29 @@ def reduction_fan_in(n):
             yield
         finally:
             clear_kernels()
+
+
+@contextlib.contextmanager
+def vector_unit_set(name):
+    """Inside the context, ``$IPC_TAICHI_LANES`` is ``name`` (``avx512``,
+    ``avx2``, ``sse``, ``neon``, ``none``, or f32 lanes ``4``, ``8``, ``16``;
+    ``None``: unset, this CPU's own):
+    the ``lanes`` step is built for that vector unit's width. Kernels and
+    workspaces are rebuilt on entry and exit; the variable is put back."""
+    old = os.environ.get(LANES_ENV)
+    try:
+        if name is None:
+            os.environ.pop(LANES_ENV, None)
+        else:
+            os.environ[LANES_ENV] = name
+        clear_kernels()
+        yield
+    finally:
+        if old is None:
+            os.environ.pop(LANES_ENV, None)
+        else:
+            os.environ[LANES_ENV] = old
+        clear_kernels()
 
 
 @contextlib.contextmanager

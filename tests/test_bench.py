@@ -162,7 +162,9 @@ def test_row_beside_the_jwst_ipc_step(cpu):
 
     pytest.importorskip("jwst", reason=optional("jwst"))  # the row beside jwst's own ipc step
     try:
-        result = measure_pipeline_ipc(size=64, nints=1, ngroups=2, repeats=1)
+        # the law rows for one width, 4 f32 lanes (small kernels to compile)
+        result = measure_pipeline_ipc(size=64, nints=1, ngroups=2, repeats=1, units=["4"],
+                                      general_size=64)
     finally:
         runtime.init("cpu", "f64")  # it leaves Taichi in f32
     step, f64, f32 = result["rows"]
@@ -170,10 +172,22 @@ def test_row_beside_the_jwst_ipc_step(cpu):
     assert result["ratio"] == f64["vs_jwst"] == f64["median_s"] / step["median_s"]
     for ours in (f64, f32):
         assert step["median_s"] > 0 and ours["median_s"] > 0
+        assert ours["vs_jwst_cpu"] > 0 and ours["threads"] >= 1
         assert ours["iterations"] and max(ours["iterations"]) <= 20
         assert 0 < ours["max_error"] < step["max_error"] / 5
     text = render_pipeline(result)
     assert "jwst ipc step" in text and f"{f32['vs_jwst']:.2f}x" in text
+    # the CPU recorded; the law rows and the per-iteration rows at the unit asked for
+    assert result["cpu"]["model"] and "CPU: " in text
+    assert list(result["by_unit"]) == ["4"]
+    laws = result["by_unit"]["4"]["law_rows"]
+    assert [r["law"] for r in laws] == ["constant:0.0125", "donlon2018", "donlon2018",
+                                        "table 257x257", "table 257x257"]
+    assert all(r["row"].endswith(", 4 lanes)") and r["row"] in text for r in laws)
+    general = result["general"]["laws"]
+    assert [r["law"] for r in general] == ["constant:0.0125", "donlon2018", "table 257x257"]
+    assert general[0]["law's cost [ns/pixel]"] == 0 and all(r["x floor"] > 0 for r in general)
+    assert "the law's evaluation against the stream" in text
 
 
 def test_cli_refuses_a_tiny_jwst_ramp(cli, tmp_path):

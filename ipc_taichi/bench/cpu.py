@@ -2,6 +2,7 @@
 process of its own (:func:`measure_row`), and the floor's building blocks
 measured on this machine (:func:`measure_floor`)."""
 
+import os
 import statistics
 import time
 
@@ -17,8 +18,8 @@ from ..laws import donlon2018
 from ..model import CouplingModel
 from ..reference import decouple_numpy, decouple_reference
 
-__all__ = ["measure_row", "measure_floor", "measure_bondmap", "SIZES", "KINDS",
-           "NUMPY_REPEAT_CAP", "REFERENCE_MAX_SIZE", "BONDMAP_TARGET"]
+__all__ = ["measure_row", "measure_floor", "measure_bondmap", "iteration_time", "cpu_record",
+           "SIZES", "KINDS", "NUMPY_REPEAT_CAP", "REFERENCE_MAX_SIZE", "BONDMAP_TARGET"]
 
 SIZES = (512, 2048, 4096)
 KINDS = ("uniform", "stars")
@@ -43,6 +44,34 @@ def _reset_peak():
         return True
     except OSError:
         return False
+
+
+def cpu_record():
+    """The CPU a CPU number was measured on: ``model`` (``/proc/cpuinfo``'s
+    model name), ``vector_extensions`` (its vector flags,
+    :func:`ipc_taichi.engine.vector_extensions`), ``vector_unit`` (the one the
+    ``lanes`` step is built for here) and the load average."""
+    model = "unknown"
+    try:
+        with open("/proc/cpuinfo") as f:
+            model = next((line.split(":", 1)[1].strip() for line in f
+                          if line.startswith("model name")), model)
+    except OSError:
+        pass
+    return {"model": model, "vector_extensions": engine.vector_extensions(),
+            "vector_unit": engine.host_vector_unit(),
+            "load_average": [round(v, 2) for v in os.getloadavg()]}
+
+
+def iteration_time(measured, out, **kw):
+    """Seconds per Jacobi iteration of :func:`ipc_taichi.decouple` of
+    ``measured`` (``kw``: its arguments): the time of 5 iterations less that
+    of 1, over 4, so that the per-call work cancels."""
+    t0 = time.perf_counter()
+    ipc_taichi.decouple(measured, tol=0, max_iter=5, out=out, **kw)
+    t1 = time.perf_counter()
+    ipc_taichi.decouple(measured, tol=0, max_iter=1, out=out, **kw)
+    return ((t1 - t0) - (time.perf_counter() - t1)) / 4
 
 
 def measure_floor(n=1 << 22, repeats=5):
@@ -213,11 +242,7 @@ def _map_row(measured, out, models, repeats, precision, law):
         ipc_taichi.decouple(measured, model=model, tol=0, max_iter=1, out=out)
     for _ in range(repeats):
         for name, model in models.items():
-            t0 = time.perf_counter()
-            ipc_taichi.decouple(measured, model=model, tol=0, max_iter=5, out=out)
-            t1 = time.perf_counter()
-            ipc_taichi.decouple(measured, model=model, tol=0, max_iter=1, out=out)
-            per[name].append(((t1 - t0) - (time.perf_counter() - t1)) / 4)
+            per[name].append(iteration_time(measured, out, model=model))
     u, m = statistics.median(per["uniform"]), statistics.median(per["map"])
     ratios = [a / b for a, b in zip(per["map"], per["uniform"])]
     return {"law": law, "precision": precision, "frame": f"{len(measured)}x{len(measured)}",

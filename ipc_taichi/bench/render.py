@@ -169,7 +169,8 @@ def _floor_text(results):
                        f"{pair:.2f} ns, streaming one pixel's bytes {stream:.2f} ns; the "
                        f"alphas alone cost **{bound[prec]:.1f} ns per pixel and iteration** "
                        f"in scalar code (one alpha at a time, as the `sweep` layout; the "
-                       f"CPU's default `lanes` layout evaluates 8 (f64) or 16 (f32) at once).")
+                       f"CPU's default `lanes` layout evaluates 16 (f32) or 8 (f64) at once "
+                       f"on AVX2 and AVX-512, 8 or 4 on SSE and NEON).")
         out.append(f"- NumPy (one thread, SIMD exp where it has it): one pair alpha "
                    f"{measured['numpy_pair_ns']:.2f} ns.")
     h = floor["h100"]
@@ -204,23 +205,29 @@ def render_pipeline(result):
              f"{result['nints']} integrations x {result['ngroups']} groups of "
              f"{result['size']}x{result['size']} (NIRCam-like, 4 reference pixels each side), "
              f"constant alpha {result['alpha']:g}, in one process; compute only (median of "
-             "warm runs). Issue 28's targets: the exact decoupler (converged) at most 0.5x the "
-             "step's time in f32 and 0.8x in f64 with the constant law, at most 1.0x with "
-             "`donlon2018` and a 257x257 table law (f32).", "",
-             "| method | median [s] | x the jwst step | x the step, interleaved | max error [e-] "
-             "| iterations |",
-             "|---|---:|---:|---:|---:|---|"]
-    for r in result["rows"] + result.get("law_rows", []):
+             "warm runs). Issue 39's targets (f32, on AVX2 as well as on AVX-512): the exact "
+             "decoupler (converged) at most 0.35x the step's time with the constant law, "
+             "0.8x with `donlon2018` and with a 257x257 table law (issue 28's, before: 0.5x, "
+             "1.0x, 1.0x; f64 constant 0.8x).", ""] + _cpu_lines(result) + [
+             "| method | median [s] | x the jwst step | x the step, interleaved "
+             "| x the step, CPU time / threads | max error [e-] | iterations |",
+             "|---|---:|---:|---:|---:|---:|---|"]
+    by_unit = result.get("by_unit") or {None: {"law_rows": result.get("law_rows", [])}}
+    for r in result["rows"] + [r for u in by_unit.values() for r in u["law_rows"]]:
         its = ", ".join(str(i) for i in r.get("iterations", [])) or "1 pass"
         if "total_iterations" in r:
             its += f" ({r['total_iterations']} in all)"
         ratio = f"{r['vs_jwst']:.2f}x" if "vs_jwst" in r else ""
         mixed = f"{r['vs_jwst_interleaved']:.2f}x" if "vs_jwst_interleaved" in r else ""
-        lines.append(f"| {r['row']} | {r['median_s']:.3f} | {ratio} | {mixed} | "
+        cpu = f"{r['vs_jwst_cpu']:.2f}x" if "vs_jwst_cpu" in r else ""
+        lines.append(f"| {r['row']} | {r['median_s']:.3f} | {ratio} | {mixed} | {cpu} | "
                      f"{r['max_error']:.3g} | {its} |")
     lines += ["", "- x the jwst step: the median against the step's median timed first; "
               "interleaved: against the step timed before each run of the row (the ratio of "
-              "the two medians; both see the same load on a shared machine)."]
+              "the two medians; both see the same load on a shared machine); CPU time / "
+              "threads: our CPU time over the threads it ran on against the step's (one "
+              "thread), medians of the same runs: what an idle machine shows where the "
+              "threads scale (under load two threads and one do not see the same machine)."]
     lines += _pipeline_floor(result)
     return "\n".join(lines) + "\n"
 
@@ -235,12 +242,37 @@ def _pipeline_floor(result):
                  f"copy of a {size}x{size} f32 frame (read and write every pixel once) "
                  f"{floor * 1e3:.2f} ms; the JWST step takes "
                  f"{result['jwst_per_group_s'] / floor:.0f}x that per group."]
-    general = result.get("general")
-    if general:
+    by_unit = result.get("by_unit") or {None: {"general": result.get("general")}}
+    for general in (u["general"] for u in by_unit.values() if u.get("general")):
         n = general["size"]
-        lines.append(f"- General law (`{general['law']}`), {n}x{n} {general['precision']}, "
-                     f"per Jacobi iteration: {general['iteration_s'] * 1e3:.1f} ms "
+        lanes = f", `lanes` step for {general['lanes']}" if "lanes" in general else ""
+        lines.append(f"- General law (`{general['law']}`), {n}x{n} {general['precision']}"
+                     f"{lanes}, per Jacobi iteration: {general['iteration_s'] * 1e3:.1f} ms "
                      f"({general['ns_per_pixel']:.2f} ns per pixel), "
                      f"**{general['vs_floor']:.1f}x the streaming floor** (one NumPy copy of "
-                     f"that frame, {general['floor_s'] * 1e3:.2f} ms; issue 28's target 5x).")
+                     f"that frame, {general['floor_s'] * 1e3:.2f} ms, median of copies "
+                     "between the runs; issue 39's target 2x, issue 28's 5x).")
+    for general in (u["general"] for u in by_unit.values() if u.get("general")):
+        if general.get("laws"):
+            lines += ["", render_section({
+                "title": f"Per iteration, {general['size']}x{general['size']} f32, "
+                         f"`lanes` step for {general['lanes']}: the law's evaluation against "
+                         "the stream",
+                "rows": general["laws"],
+                "notes": ["ipc_taichi.bench.pipeline._general: the same step with each law "
+                          "(constant: no alpha evaluated), interleaved; per iteration = (5 "
+                          "iterations - 1) / 4; x floor: against one NumPy copy of the frame; "
+                          "the law's cost: the difference to the constant law per pixel."]})]
     return lines
+
+
+def _cpu_lines(result):
+    """The CPU the section ran on (lines of Markdown; none for an older result)."""
+    cpu = result.get("cpu")
+    if not cpu:
+        return []
+    return [f"CPU: {cpu['model']}; vector extensions {' '.join(cpu['vector_extensions'])}; "
+            f"the `lanes` step built for {cpu['vector_unit'] or 'none (the sweep)'} unless a "
+            "row names another width (forced by `IPC_TAICHI_LANES`: LLVM still compiles for "
+            "this CPU). Load average when the section ended: "
+            f"{', '.join(str(v) for v in cpu['load_average'])}.", ""]
