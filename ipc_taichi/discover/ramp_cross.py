@@ -1,7 +1,7 @@
 """The cross-read part of the ramp gap (``docs/discover.md``, "Ramps"): the
 products of a pixel's whitened increments at two different reads, with its
 own and its neighbours' (:func:`cross_products`), what brighter-fatter makes
-of them (:func:`cross_response`), and brighter-fatter's feedback in a
+of them (:class:`CrossResponse`), and brighter-fatter's feedback in a
 simulated ramp (:func:`collect_reads`).
 
 In a uniform flat brighter-fatter moves no mean charge: it makes a pixel's
@@ -10,9 +10,10 @@ With ``A_p = 1 + sum_d a(d) Q(p + d)`` (the kernel of
 :func:`~ipc_taichi.brighterfatter.kernel_from_deflection`), the increment
 ``d_j`` of pixel ``p`` and the earlier ``d_i`` (``i < j``) of pixel ``p - d``
 share ``Cov(d_i(p - d), d_j(p)) = a(d) mu_j(p) s_i(p - d)`` (``mu`` the
-expected increments, ``s`` their shot variances; to first order in ``a``),
-so the whitened increments' products at reads ``i < j`` have a mean
-``~ I dt a(d)`` per pair instead of zero.
+expected increments, ``s`` their shot variances; to first order in ``a``;
+:class:`CrossResponse` takes the flat-ramp model's exact covariance), so the
+whitened increments' products at reads ``i < j`` have a mean ``~ I dt a(d)``
+per pair instead of zero.
 """
 
 
@@ -22,8 +23,7 @@ from ..brighterfatter import kernel_from_deflection
 from ..detector import collect
 
 __all__ = ["CROSS_LAGS", "CROSS_Z", "BF_SUBSTEPS", "bf_kernel_of", "collect_reads",
-           "cross_products", "cross_read_excess", "cross_response", "kernel_at_lags",
-           "pixel_pairs"]
+           "cross_products", "cross_read_excess", "CrossResponse", "pixel_pairs"]
 
 CROSS_Z = 3.0  # a cross-read product beyond this many floor scatters leaves the model incomplete
 BF_SUBSTEPS = 2  # a simulated read collects in this many steps, each at the rate its start sets
@@ -115,48 +115,66 @@ def cross_read_excess(stats, z=CROSS_Z):
 
 
 
-def kernel_at_lags(kernel):
-    """``{name: a}``: the kernel's mean value at each class of :data:`CROSS_LAGS`
-    (both signs of each offset)."""
-    k = np.asarray(kernel)
-    return {name: float(np.mean([k[2 + s * dy, 2 + s * dx] for dy, dx in lags for s in (1, -1)]))
-            for name, lags in CROSS_LAGS.items()}
+def _later_sums(l_inv):
+    """``sum_{j > i} L^{-1}[j, :]`` for each ``i`` (the rows the later reads of a pair add)."""
+    rev = np.cumsum(l_inv[..., ::-1, :], axis=-2)[..., ::-1, :]
+    return np.concatenate([rev[..., 1:, :], np.zeros_like(rev[..., :1, :])], axis=-2)
 
 
-def _pair_response(la, lb, mu_a, s_a, mu_b, s_b, n):
-    """Per pixel pair: the mean over ``i < j`` of ``E[w_i(a) w_j(b)]`` per unit
-    kernel value (module docstring; ``la``, ``lb`` the inverse Cholesky
-    factors, ``mu``, ``s`` the increments' means and shot variances, reads last)."""
-    upper = np.triu(np.ones((n, n)), 1)
-    within = 1.0 - 1.0 / BF_SUBSTEPS  # a read's own steps feed each other
-    b = (s_a[..., :, None] * mu_b[..., None, :] * upper
-         + mu_a[..., :, None] * s_b[..., None, :] * upper.T
-         + within * np.eye(n) * (s_a * mu_b)[..., None, :])
-    m = la @ b @ np.swapaxes(lb, -1, -2)
-    return np.sum(m * upper, axis=(-1, -2)) / (n * (n - 1) // 2)
+class CrossResponse:
+    """What a brighter-fatter kernel adds to the cross-read products of ramps
+    whitened by a model's covariance (:meth:`expected`).
 
+    Per ramp and class of :data:`CROSS_LAGS` the weights ``W_kl``, the mean
+    over pixel pairs ``(p, p + d)`` of ``sum_{i < j} L_p^{-1}[i, k]
+    L_{p+d}^{-1}[j, l]`` divided by the pairs of reads, so that the product's
+    expectation is ``sum_kl W_kl C_kl(d)`` for an increments' covariance
+    ``C``; brighter-fatter's ``C`` is the flat-ramp model's
+    (:class:`~ipc_taichi.calibrate.rampmodel.RampCovariance`: exact in the
+    kernel, the feedback compounding over the reads, :data:`BF_SUBSTEPS`
+    steps per read) at the ramp's mean expected increment, times the shot
+    variance's share of it (what the read-out coupling leaves)."""
 
-def cross_response(chol, mu, s, valid):
-    """``{name: (g, number)}``: what a kernel value ``a`` at the lags of each
-    class of :data:`CROSS_LAGS` adds to its cross-read product, ``a g``, for
-    increments whitened by ``chol`` (``(npix, NREADS, NREADS)``, the valid
-    pixels) with expected increments ``mu`` and shot variances ``s``
-    (``(NREADS, npix)``), to first order (module docstring); ``number`` the
-    pixel pairs (the weights of :func:`cross_products`)."""
-    n = chol.shape[-1]
-    if n < 2:
-        return {name: (0.0, 0) for name in CROSS_LAGS}
-    eye = np.broadcast_to(np.eye(n), chol.shape)
-    full = np.full(valid.shape + (n, n), np.nan)
-    full[valid] = np.linalg.solve(chol, eye)
-    means, shots = (np.full(valid.shape + (n,), np.nan) for _ in range(2))
-    means[valid], shots[valid] = mu.T, s.T
-    out = {}
-    for name, lags in CROSS_LAGS.items():
-        values = []
-        for p, q in pixel_pairs(valid.shape, lags):
-            g = _pair_response(full[p], full[q], means[p], shots[p], means[q], shots[q], n)
-            values.append(g[np.isfinite(g)])
-        values = np.concatenate(values)
-        out[name] = (float(np.mean(values)) if values.size else 0.0, values.size)
-    return out
+    def __init__(self):
+        self.ramps = []
+
+    def add(self, chol, mu, s, valid):
+        """One ramp: Cholesky factors ``(npix, NREADS, NREADS)`` of the valid
+        pixels, expected increments ``mu`` and shot variances ``s``
+        (``(NREADS, npix)``)."""
+        n = chol.shape[-1]
+        if n < 2:
+            return
+        full = np.full(valid.shape + (n, n), np.nan)
+        full[valid] = np.linalg.solve(chol, np.broadcast_to(np.eye(n), chol.shape))
+        later = _later_sums(full)
+        weights = {}
+        for name, lags in CROSS_LAGS.items():
+            total, count = np.zeros((n, n)), 0
+            for p, q in pixel_pairs(valid.shape, lags):
+                terms = np.einsum("...ik,...il->...kl", full[p], later[q])
+                ok = np.all(np.isfinite(terms), axis=(-1, -2))
+                total += terms[ok].sum(axis=0)
+                count += int(ok.sum())
+            weights[name] = (total / max(count, 1) / (n * (n - 1) // 2), count)
+        current = float(np.mean(mu))
+        share = float(np.mean(s)) / current if current > 0 else 0.0
+        self.ramps.append((weights, current, share, n))
+
+    def expected(self, kernel):
+        """``{name: value}``: the kernel's addition to each cross-read product,
+        weighted over the ramps like :func:`cross_products`."""
+        from ..calibrate.rampmodel import SYMMETRIC_LAGS, RampCovariance, symmetric_from_kernel
+
+        a = symmetric_from_kernel(kernel)
+        sums = {name: [0.0, 0] for name in CROSS_LAGS}
+        for weights, current, share, n in self.ramps:
+            model = RampCovariance(n + 1, current, 0.0, steps=BF_SUBSTEPS)
+            p = {"r": 1.0, "s2": 0.0, "k0": np.zeros(5), "k1": np.zeros(5), "common": None}
+            c = share * (model.increments({**p, "a": a}) - model.increments({**p, "a": 0 * a}))
+            for name, lags in CROSS_LAGS.items():
+                w, count = weights[name]
+                lag = SYMMETRIC_LAGS.index(tuple(abs(v) for v in lags[0]))
+                sums[name][0] += float(np.sum(w * c[:, :, lag])) * count
+                sums[name][1] += count
+        return {name: v / max(c, 1) for name, (v, c) in sums.items()}
