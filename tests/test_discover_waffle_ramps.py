@@ -127,8 +127,8 @@ def test_waffle_brighter_fatter_on_a_flat_is_named_from_the_cross_read_products(
     """BFE on, NL off, 256x256 x 10 reads (seed 4501): ``brighter_fatter``
     named alone from the cross-read products (the mean cannot see it), the
     gap then complete; its kernel's centre the simulator's -2.04e-6 within 3
-    of its errors (the fit's covariance; the first-order response reads it
-    ~10 % low, docs/discover.md)."""
+    of its errors (the fit's covariance; measured -1.77e-6 +- 0.16e-6,
+    docs/discover.md)."""
     folder = tmp_path_factory.mktemp("waffle_ramps_bf_large")
     made = waffle.discover_ramp_file(folder / "ipc_bf_256.fits", "ipc_bf", 4501, nreads=11,
                                      side=256)
