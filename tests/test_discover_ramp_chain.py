@@ -157,3 +157,51 @@ def test_second_neighbour_coupling_named_on_a_ramp(tmp_path):
     assert report["missing_effects"] == ["second_neighbor_ipc"]
     _closed(report)
     assert report["steps"][0]["params"]["alpha_second"] == pytest.approx(0.004, abs=0.0004)
+
+
+def test_cross_read_response_is_what_the_ramp_model_simulates():
+    """The cross-read products of a flat ramp of the ramp model with
+    brighter-fatter (its feedback drawn read by read) are what
+    :class:`~ipc_taichi.discover.ramp_cross.CrossResponse` says the kernel adds
+    (the fit's side of the same physics), within 4 of their scatters, and
+    depart from zero by far more; without brighter-fatter they are zero."""
+    from ipc_taichi.brighterfatter import kernel_from_deflection
+    from ipc_taichi.discover.ramp_cross import CrossResponse, cross_products
+    from ipc_taichi.discover.ramps import (
+        RampPair,
+        expected_reads,
+        increment_factors,
+        simulate_ramp,
+        whiten,
+    )
+
+    params = {"deflection_x_at_50ke": 0.2, "deflection_y_at_50ke": 0.2, "upwind": 1.0,
+              "reach": 0.0}
+    base = RampModel(DetectorModel("constant:0.01", 10.0, True))
+    bf = RampModel(base.frame.with_effects({"brighter_fatter": params}))
+    times = 3.0 * np.arange(1, 9)
+    pair = RampPair(1, np.full((40, 40), 1500.0), np.zeros((8, 40, 40)), times)
+    mean, shot, r = expected_reads(base, pair)
+    valid = np.zeros((40, 40), bool)
+    valid[2:-2, 2:-2] = True
+    chol, _, _ = increment_factors(mean, mean, shot, r, valid, pair)
+    response = CrossResponse()
+    response.add(chol, np.diff(mean, axis=0, prepend=0.0)[:, valid],
+                 np.diff(shot, axis=0, prepend=0.0)[:, valid], valid)
+    expected = response.expected(kernel_from_deflection(0.2, 0.2, 0.0, 1.0))
+    rng = np.random.default_rng(7)
+    for model, want in ((bf, expected), (base, {name: 0.0 for name in expected})):
+        got = {name: [] for name in expected}
+        for _ in range(2):
+            reads = simulate_ramp(model, pair, rng)
+            d = np.diff(reads, axis=0, prepend=0.0)[:, valid]
+            mu = np.diff(mean, axis=0, prepend=0.0)[:, valid]
+            for name, (value, number) in cross_products(whiten(chol, d - mu), valid).items():
+                got[name].append((value, number))
+        for name in expected:
+            value = np.mean([v for v, _ in got[name]])
+            sigma = 1.0 / math.sqrt(sum(n for _, n in got[name]))
+            assert abs(value - want[name]) < 4 * sigma, (name, value, want[name], sigma)
+    # 36x36 pixels x 28 pairs of reads x 2 ramps: the self product's scatter
+    assert expected["self"] < -5 / math.sqrt(36 * 36 * 28 * 2)
+    assert expected["x"] > 0 and expected["y"] > 0

@@ -43,10 +43,12 @@ import math
 import numpy as np
 from scipy.optimize import least_squares
 
+from ..brighterfatter import kernel_from_deflection
 from ..errors import GeometryError, LawError
 from .effects import EFFECTS
 from .fitting import FitResult
 from .gates import SIGNATURE_Z2, signature
+from .ramp_cross import CROSS_LAGS, CrossResponse
 from .ramps import RampModel, expected_mean, expected_reads, increment_factors, whiten
 
 __all__ = ["FITTED", "RIVALS", "offered", "fit_frame_effect", "rival_contradiction",
@@ -78,23 +80,43 @@ def offered(model):
             if name not in frame.effects and EFFECTS[name].offered(law)]
 
 
-def _parts(model, ramps):
+def _parts(model, ramps, response=False):
     """Per ramp: the Cholesky factors of the increments under ``model``, the
-    measured increments of the valid pixels and the valid mask."""
-    parts = []
+    measured increments of the valid pixels and the valid mask; with
+    ``response`` the brighter-fatter response of the cross-read products
+    (:class:`~.ramp_cross.CrossResponse`), else ``None``."""
+    parts, out = [], CrossResponse() if response else None
     for k, ramp in enumerate(ramps):
         mean, shot, r = expected_reads(model, ramp, model.afterglow(ramps, k))
         valid = model.valid(ramp)
         chol, _, _ = increment_factors(ramp.reads, mean, shot, r, valid, ramp)
         parts.append((chol, np.diff(ramp.reads, axis=0, prepend=0.0)[:, valid], valid))
-    return parts
+        if response:
+            out.add(chol, np.diff(mean, axis=0, prepend=0.0)[:, valid],
+                    np.clip(np.diff(shot, axis=0, prepend=0.0)[:, valid], 0.0, None), valid)
+    return parts, out
 
 
-def fit_frame_effect(name, model, ramps, ln_n, max_nfev=40):
+def _cross_misfit(params, response, cross):
+    """The cross-read products' departures from the model with brighter-fatter
+    ``params`` in units of their floor scatters: measured less (the floor plus
+    what the kernel adds, :class:`~.ramp_cross.CrossResponse` ``response``)."""
+    added = response.expected(kernel_from_deflection(
+        params["deflection_x_at_50ke"], params["deflection_y_at_50ke"], params["reach"],
+        params["upwind"]))
+    return np.array([(cross["cross_read"][name] - cross["cross_read_floor"][name][0]
+                      - added[name]) / cross["cross_read_floor"][name][1]
+                     for name in CROSS_LAGS])
+
+
+def fit_frame_effect(name, model, ramps, ln_n, max_nfev=40, cross=None):
     """``(params, evidence, new model, fit)`` of frame effect ``name`` added
     to ``model`` and fitted to ``ramps`` (module docstring); ``fit`` a
     :class:`~.fitting.FitResult` (``chi2`` the delta chi^2, ``cov`` from the
-    whitened residuals' Jacobian) for :func:`signature_refusal`."""
+    whitened residuals' Jacobian) for :func:`signature_refusal`. ``cross``
+    (the current model's :func:`~.ramps.ramp_gap` result): brighter-fatter's
+    residuals include its cross-read products (:func:`_cross_misfit`) when
+    the gap's mean square lies within 3 floor scatters of its floor."""
     start = model.frame.starting_params(name)
     keys = FITTED[name]
     specs = {p.name: p for p in EFFECTS[name].params}
@@ -102,8 +124,12 @@ def fit_frame_effect(name, model, ramps, ln_n, max_nfev=40):
     scale = np.array([specs[key].scale for key in keys])
     lower = np.array([specs[key].lower for key in keys])
     upper = np.array([specs[key].upper for key in keys])
-    parts = _parts(model, ramps)
-    size = sum(d.size for _, d, _ in parts)
+    use_cross = name == "brighter_fatter" and cross is not None and "cross_read" in cross and (
+        # a mean the model misses makes every product large: the covariance
+        # is read only where the mean square is at its floor
+        abs(cross["gap"] - cross["gap_floor"]) <= 3.0 * cross["gap_floor_sigma"])
+    parts, response = _parts(model, ramps, response=use_cross)
+    size = sum(d.size for _, d, _ in parts) + (len(CROSS_LAGS) if use_cross else 0)
 
     def newer(x):
         params = {**start, **{key: float(v) for key, v in zip(keys, x)}}
@@ -112,7 +138,8 @@ def fit_frame_effect(name, model, ramps, ln_n, max_nfev=40):
     def residual(z):
         try:
             trial = newer(x0 + z * scale)
-            out = []
+            out = ([_cross_misfit(trial.frame.effects[name], response, cross)] if use_cross
+                   else [])
             for k, (chol, d, valid) in enumerate(parts):
                 mu = expected_mean(trial, ramps[k], trial.afterglow(ramps, k))
                 out.append(whiten(chol, d - np.diff(mu, axis=0, prepend=0.0)[:, valid]).ravel())

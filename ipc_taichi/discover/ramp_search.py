@@ -58,8 +58,10 @@ them from a coupling-model file (``start``) or not at all.
 
 import math
 
+import numpy as np
+
 from ..model import CouplingModel
-from .effects import contradiction, implausible
+from .effects import EFFECTS, contradiction, implausible
 from .model import DetectorModel
 from .ramp_chain import fit_frame_effect, offered, rival_contradiction, signature_refusal
 from .ramp_effects import RAMP_EFFECTS
@@ -78,7 +80,7 @@ def fit_ramp_effect(name, model, ramps, ln_n):
     return RAMP_EFFECTS[name].fit(model, ramps, ln_n)
 
 
-def _trials(model, ramps, data, ln_n, threshold, refused, say):
+def _trials(model, ramps, data, ln_n, threshold, refused, say, stats=None):
     """Every effect not in ``model`` fitted beside it: ``{name: (evidence,
     params, new model)}`` of those no gate refuses (refusals of candidates
     above ``threshold`` go into ``refused``, with why)."""
@@ -91,15 +93,15 @@ def _trials(model, ramps, data, ln_n, threshold, refused, say):
         if found is not None:
             params, evidence, newer, extra = found
             fitted[name] = (evidence, params, newer, effect.contradiction(params, extra)
-                            or effect.implausible(params, data.readnoise, duration=duration))
+                            or effect.implausible(params, data.readnoise, duration=duration), {})
     for name in offered(model):
-        params, evidence, newer, fit = fit_frame_effect(name, model, ramps, ln_n)
+        params, evidence, newer, fit = fit_frame_effect(name, model, ramps, ln_n, cross=stats)
         fitted[name] = (evidence, params, newer, contradiction(name, params)
                         or implausible(name, params, data.readnoise)
-                        or signature_refusal(name, fit))
+                        or signature_refusal(name, fit), _fit_extras(name, params, fit))
     evidence = {name: f[0] for name, f in fitted.items()}
     trials = {}
-    for name, (ev, params, newer, why) in fitted.items():
+    for name, (ev, params, newer, why, extras) in fitted.items():
         why = why or (rival_contradiction(name, evidence, threshold) if ev > threshold
                       else None)
         say(f"candidate {name}: delta BIC {ev:.1f} {params}" + (f" ({why})" if why else ""))
@@ -107,12 +109,28 @@ def _trials(model, ramps, data, ln_n, threshold, refused, say):
             if ev > threshold:
                 refused[name] = why
             continue
-        trials[name] = (ev, params, newer)
+        trials[name] = (ev, params, newer, extras)
     return trials
 
 
+def _fit_extras(name, params, fit):
+    """A frame effect's step extras: its fitted parameters' ``uncertainties``
+    and, for an effect whose record reports a section (brighter-fatter's
+    kernel and its errors), that section under its name."""
+    out = {"uncertainties": {key: float(fit.errors[(name, key)]) for _, key in fit.keys}}
+    record = EFFECTS[name]
+    if record.reports_section:
+        order = [p.name for p in record.params]
+        cov = np.zeros((len(order), len(order)))
+        at = [order.index(key) for _, key in fit.keys]
+        cov[np.ix_(at, at)] = fit.cov
+        out[name] = record.report_section(params, cov, "fitted to the ramps")
+    return out
+
+
 _TIME_KEYS = ("gap", "gap_per_read", "neighbour_correlation", "gap_per_read_floor",
-              "neighbour_floor")  # kept for the baseline and each step (the figures)
+              "neighbour_floor", "cross_read",
+              "cross_read_floor")  # kept for the baseline and each step (the figures)
 
 
 def _verdict(stats):
@@ -148,11 +166,11 @@ def discover_ramps(data, seed=0, n_sim=8, threshold=THRESHOLD, max_steps=3, star
     first = {key: stats[key] for key in _TIME_KEYS}
     ln_n = math.log(sum(r.valid.sum() * len(r.times) for r in ramps))
     while not stats["complete"] and len(steps) < max_steps:
-        trials = _trials(model, ramps, data, ln_n, threshold, refused, say)
+        trials = _trials(model, ramps, data, ln_n, threshold, refused, say, stats)
         best = max(trials, key=lambda n: trials[n][0], default=None)
         if best is None or trials[best][0] <= threshold:
             break
-        evidence, params, newer = trials[best]
+        evidence, params, newer, extras = trials[best]
         after = ramp_gap(data, newer, n_sim, seed + len(steps) + 1)
         excess = stats["gap"] - stats["gap_floor"]
         fraction = (stats["gap"] - after["gap"]) / excess if excess > 0 else None
@@ -164,7 +182,7 @@ def discover_ramps(data, seed=0, n_sim=8, threshold=THRESHOLD, max_steps=3, star
             refused[best] = (f"it would leave the gap {below:.1f} floor scatters below its "
                              "floor: a variance inflated to absorb a mis-modelled mean")
             break
-        steps.append({"effect": best, "params": params, "evidence": evidence,
+        steps.append({"effect": best, "params": params, **extras, "evidence": evidence,
                       "evidence_kind": "delta_BIC", "gap_before": stats["gap"],
                       "gap_after": after["gap"], "explained_fraction": fraction,
                       "floor_before": stats["gap_floor"],

@@ -36,7 +36,16 @@ the **neighbour correlation** the mean product of whitened increments of
 horizontal and of vertical neighbours (IPC gives a small positive value the
 floor simulations reproduce; read noise shared along rows or columns, or
 brighter-fatter's moving boundaries, add to it). The floor is the model
-simulated with fresh noise (:func:`ramp_gap` with ``n_sim``).
+simulated with fresh noise (:func:`ramp_gap` with ``n_sim``). The
+**cross-read products** (:data:`~.ramp_cross.CROSS_LAGS`) are the mean products of a
+pixel's whitened increment at read ``i`` with its own (``self``) and its
+neighbours' (``x``, ``y``, ``diagonal``) at every later read ``j > i``: zero
+for independent increments; a pixel whose collection slows with the charge
+it holds (brighter-fatter in a flat: ``E ~ I dt a(d)`` per pair) makes them
+depart, which the mean square cannot see. Each is compared with its floor
+from the same simulations, and a simulation of a model with brighter-fatter
+collects each read in steps (:mod:`.ramp_cross`) at the rate its noisy
+charge sets (``1 + sum_d a(d) dQ(p + d)``, the kernel of its parameters).
 
 This module names no effect: the search over the ramp vocabulary and the
 frame effects read by read is :mod:`.ramp_search` (:mod:`.ramp_effects`,
@@ -50,11 +59,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..detector import collect, read_noise
+from ..detector import read_noise
 from ..errors import IPCInputError
 from ..fitsio import atomic_output
 from .labdata import read_header
 from .model import DetectorModel
+from .ramp_cross import CROSS_LAGS, bf_kernel_of, collect_reads, cross_products, cross_read_excess
 from .sampling import block_sum
 
 __all__ = ["RampPair", "RampData", "RampModel", "whitened", "read_ramps", "write_ramps",
@@ -335,8 +345,7 @@ def simulate_ramp(model, ramp, rng, extra=None):
     c = frame.collected(_charge_scene(ramp), ramp.oversample)
     if extra is not None:
         c = c + extra
-    steps = np.diff(np.concatenate([np.zeros((1,) + c.shape[1:]), c]), axis=0)
-    charge = np.cumsum(collect(steps, rng if frame.shot_noise else None), axis=0)
+    charge = collect_reads(c, rng if frame.shot_noise else None, bf_kernel_of(frame))
     n, ny, nx = charge.shape
     m = n + 1 if ramp.first_subtracted else n  # FIRSTSUB: the read subtracted from all
     noise = read_noise((m, ny, nx), math.sqrt(frame.read_variance()), rng)
@@ -428,19 +437,24 @@ def whitened(model, ramps, k, reads=None):
 
 
 def _statistics(model, ramps, reads_of):
-    """Gap, gap per read, neighbour products, :func:`_jumps` and the number of
-    whitened increments of ``reads_of(k)`` (ramp ``k``'s reads) under ``model``."""
-    squares, per_read, products, jumps = [], [], [], np.zeros(3)
+    """Gap, gap per read, neighbour products, :func:`_jumps`, the number of
+    whitened increments of ``reads_of(k)`` (ramp ``k``'s reads) under
+    ``model`` and the cross-read products (``{name: (mean, number)}``)."""
+    squares, per_read, products, jumps, cross = [], [], [], np.zeros(3), []
     for k in range(len(ramps)):
         w, valid = whitened(model, ramps, k, reads_of(k))
         squares.append((w * w).ravel())
         per_read.append(np.mean(w * w, axis=1))
         products.append(_neighbour_products(w, valid))
+        cross.append(cross_products(w, valid))
         jumps += _jumps(w)
     nb = {a: float(np.mean([p[a] for p in products])) for a in ("x", "y")}
     n = sum(s.size for s in squares)
+    counts = {name: sum(c[name][1] for c in cross) for name in CROSS_LAGS}
+    cross = {name: (sum(c[name][0] * c[name][1] for c in cross) / max(counts[name], 1),
+                    counts[name]) for name in CROSS_LAGS}
     return (float(np.mean(np.concatenate(squares))), np.mean(per_read, axis=0), nb,
-            tuple(float(j) for j in jumps), n)
+            tuple(float(j) for j in jumps), n, cross)
 
 
 def ramp_gap(data, model=None, n_sim=8, seed=0):
@@ -459,7 +473,8 @@ def ramp_gap(data, model=None, n_sim=8, seed=0):
     model = _as_ramp_model(model or data.model())
     ramps = data.ramps
     rng = np.random.default_rng(seed)
-    gap_now, per_read, nb, jumps, n = _statistics(model, ramps, lambda k: ramps[k].reads)
+    gap_now, per_read, nb, jumps, n, cross = _statistics(model, ramps,
+                                                         lambda k: ramps[k].reads)
     sims = [_statistics(model, ramps, lambda k: simulate_ramp(
         model, ramps[k], rng, model.afterglow(ramps, k))) for _ in range(int(n_sim))]
     gaps = np.array([s[0] for s in sims])
@@ -476,8 +491,16 @@ def ramp_gap(data, model=None, n_sim=8, seed=0):
                                        1.0 / math.sqrt(n)))
                                for a in ("x", "y")},
            "odd_pixels": {"count": int(jumps[0]), "expected": jumps[1],
-                          "up_and_down": int(jumps[2])}}
-    out["complete"] = bool(abs(gap_now - out["gap_floor"]) <= 3.0 * out["gap_floor_sigma"])
+                          "up_and_down": int(jumps[2])},
+           "cross_read": {name: v[0] for name, v in cross.items()},
+           # as for the neighbour products: at least n independent products' scatter
+           "cross_read_floor": {name: (float(np.mean([s[5][name][0] for s in sims])),
+                                       max(float(np.std([s[5][name][0] for s in sims],
+                                                        ddof=1)),
+                                           1.0 / math.sqrt(max(v[1], 1))))
+                                for name, v in cross.items()}}
+    out["complete"] = bool(abs(gap_now - out["gap_floor"]) <= 3.0 * out["gap_floor_sigma"]
+                           and not cross_read_excess(out))
     out["unexplained"] = [] if out["complete"] else describe_ramp_misfit(out)
     return out
 
@@ -516,6 +539,13 @@ def describe_ramp_misfit(stats):
         out.append("increments of neighbours correlated beyond the model along "
                    f"{excess['x']} and {excess['y']}: a misfit shared by neighbouring pixels, "
                    "a signal over areas the model lacks")
+    cross = cross_read_excess(stats)
+    if cross:
+        out.append("increments correlated across reads beyond the model (" + ", ".join(
+            f"{name} {stats['cross_read'][name]:.4f}, the floor "
+            f"{stats['cross_read_floor'][name][0]:.4f} +- {stats['cross_read_floor'][name][1]:.4f}"
+            for name in cross) + "): a pixel's later increments depend on the charge it and "
+                   "its neighbours already hold (brighter-fatter?)")
     odd = stats["odd_pixels"]
     if odd["count"] > odd["expected"] + RAMP_UNEXPLAINED_Z * math.sqrt(max(odd["expected"], 1)):
         kind = (f"most of them up and down by more than {RETURN_Z:g} sigma: levels that "
