@@ -220,7 +220,8 @@ def test_issue_28_rows_beside_the_jwst_step(cpu):
     assert general["size"] == 128 and general["floor_s"] > 0
     assert general["vs_floor"] == general["iteration_s"] / general["floor_s"]
     text = render_pipeline(result)
-    assert "table 257x257 (cpu f32, warm start)" in text
+    assert "table 257x257 (cpu f32, warm start, " in text  # then the vector unit
+    assert all(r["row"] in text for r in result["law_rows"])
     assert f"**{general['vs_floor']:.1f}x the streaming floor**" in text
 
 

@@ -20,6 +20,7 @@ per pair instead of zero.
 import numpy as np
 
 from ..brighterfatter import kernel_from_deflection
+from ..calibrate.rampmodel import SYMMETRIC_LAGS, RampCovariance, symmetric_from_kernel
 from ..detector import collect
 
 __all__ = ["CROSS_LAGS", "CROSS_Z", "BF_SUBSTEPS", "bf_kernel_of", "collect_reads",
@@ -164,8 +165,6 @@ class CrossResponse:
     def expected(self, kernel):
         """``{name: value}``: the kernel's addition to each cross-read product,
         weighted over the ramps like :func:`cross_products`."""
-        from ..calibrate.rampmodel import SYMMETRIC_LAGS, RampCovariance, symmetric_from_kernel
-
         a = symmetric_from_kernel(kernel)
         sums = {name: [0.0, 0] for name in CROSS_LAGS}
         for weights, current, share, n in self.ramps:
