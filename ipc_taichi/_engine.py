@@ -436,7 +436,10 @@ def _load_host(host, bad, io, ws, shift=None):
     ws.place_measured(base, warm=shift is not None)
     start = interior(ws.prev, ws.reach, ws.shape)
     if shift is not None:  # a warm start, S_0 = M + shift, in the same pass
-        np.add(base, shift, out=start)
+        if hasattr(shift, "add_to"):  # lanes: from the padded frame just placed (_warm.LaneShift)
+            shift.add_to(ws)
+        else:
+            np.add(base, shift, out=start)
         if any_bad:
             start[bad_px] = 0.0
     elif ws.start is ws.prev:
