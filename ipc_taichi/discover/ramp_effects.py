@@ -86,6 +86,7 @@ __all__ = ["RampEffect", "Persistence", "DarkCurrent", "CorrelatedReadNoise", "B
            "RAMP_LIMITS", "DARK_SHARE", "released", "earlier_charge", "dark_charge"]
 
 DARK_SHARE = 0.5  # shared read noise: the dark lines must show this share of it
+FRAME_SHARE = 0.5  # rows' and columns' offsets: at most this share of them the frame's
 
 
 def _cholesky(model, ramps, k):
@@ -309,7 +310,7 @@ class CorrelatedReadNoise(RampEffect):
         if max(p["row_variance_e2"], p["column_variance_e2"]) <= 0:
             return "rows and columns share less noise than independent pixels would"
         extra, frame = extra if isinstance(extra, tuple) else (extra, None)
-        if frame is not None and frame > DARK_SHARE:
+        if frame is not None and frame > FRAME_SHARE:
             return (f"{100 * frame:.0f} % of what the lines share at a read is shared by the "
                     "whole frame: an offset of the frame (bias_drift), not of rows or columns")
         if extra is not None and extra < DARK_SHARE:
