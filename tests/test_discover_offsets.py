@@ -3,7 +3,8 @@
 pixel of the frame. On ramps of an independent generator
 (``tests/independent/driftramps.py``: NumPy only, its own scene, IPC,
 read noise, frame and column offsets): named at its variance and the gap
-closed, nothing on a null ramp; its contradictions; and the real FGS ACQ1
+closed, nothing on a null ramp; its contradictions; adjacent columns'
+offsets alike (``correlated_read_noise``'s ``column_lag1``); and the real FGS ACQ1
 ramp (slow): named on the raw reads, refused once each group's median over
 the frame was removed (``--remove-frame-offsets``), where
 ``correlated_read_noise`` is named as before."""
@@ -42,6 +43,20 @@ def test_null_ramp_names_no_bias_drift(tmp_path):
     assert report["missing_effects"] == [] and report["complete"] is True
 
 
+def test_adjacent_columns_alike_set_the_neighbour_floor(tmp_path):
+    """Column offsets correlated 0.7 between adjacent columns: named
+    correlated_read_noise with that lag, and the neighbour correlation along
+    x (which independent column offsets would leave near 0) at its floor."""
+    report = discover_ramps(_drift_file(tmp_path, 26, column_rms=5.0, column_lag=0.7))
+    assert report["missing_effects"] == ["correlated_read_noise"] and report["complete"]
+    p = report["final_model"]["effects"]["correlated_read_noise"]
+    assert 0.45 < p["column_lag1"] < 0.9
+    assert 12.0 < p["column_variance_e2"] < 50.0  # truth 25 e-^2
+    floor, scatter = report["neighbour_floor"]["x"]
+    assert floor > 0.04  # the simulated columns alike
+    assert abs(report["neighbour_correlation"]["x"] - floor) < 3 * scatter
+
+
 def test_bias_drift_contradictions_and_range():
     p = {"variance_e2": 30.0}
     assert "less than independent pixels" in ramp_contradiction("bias_drift",
@@ -78,4 +93,8 @@ def test_real_fgs_frame_offsets(tmp_path, cli):
     assert 15.0 < raw["final_model"]["effects"]["bias_drift"]["variance_e2"] < 60.0
     assert "whole frame" in raw["not_named"]["correlated_read_noise"]
     assert removed["missing_effects"] == ["correlated_read_noise"] and removed["complete"]
+    # adjacent columns alike (lag-1 about 0.7): the neighbours along x at their floor
+    assert 0.5 < removed["final_model"]["effects"]["correlated_read_noise"]["column_lag1"] < 0.9
+    floor, scatter = removed["neighbour_floor"]["x"]
+    assert abs(removed["neighbour_correlation"]["x"] - floor) < 3 * scatter
     assert "light falls" in removed["not_named"]["bias_drift"]

@@ -35,7 +35,10 @@ its contradiction and its physical range (``docs/discovery_format.md``,
 ``correlated_read_noise``
     ``row_variance_e2``, ``column_variance_e2``: at each read an offset
     shared by every pixel of a row (a column), Gaussian of this variance
-    (e-^2): the 1/f noise of a readout channel. Contradicted when neither is
+    (e-^2): the 1/f noise of a readout channel; ``column_lag1`` the
+    correlation of adjacent columns' offsets (1/f noise smooth across
+    columns; each column's offset follows its neighbour's as an AR(1)
+    sequence along x). Contradicted when neither is
     positive, or when the lines with no light on or next to them (by SCENE)
     show under half of it (a misfit of the signal at the sources, e.g. brighter-fatter,
     raises the lines through them only), or when over half of it is an
@@ -242,10 +245,10 @@ def _line_means(model, ramps, axis):
     """The means over each row (``axis`` 2) or column (1) of the increments'
     residuals after read 0 (from read 0 where the first read was subtracted),
     their variances from the pixels' own noise, and whether each line and its
-    two neighbours are dark (SCENE at or under the lines' median); and the
+    two neighbours are dark (SCENE at or under the lines' median); the
     means less the frame's at each read (what the whole frame shares is
-    ``bias_drift``'s)."""
-    means, variances, light, beyond = [], [], [], []
+    ``bias_drift``'s); and the products of those of adjacent lines."""
+    means, variances, light, beyond, pairs = [], [], [], [], []
     for k in range(len(ramps)):
         _, d, valid, var = _cholesky(model, ramps, k)
         full = np.zeros((d.shape[0],) + valid.shape)
@@ -264,13 +267,14 @@ def _line_means(model, ramps, axis):
         first = 0 if ramps[k].first_subtracted else 1
         means.append(m[first:].ravel())
         beyond.append(mb[first:].ravel())
+        pairs.append((mb[first:, :-1] * mb[first:, 1:]).ravel())
         variances.append(v[first:].ravel())
         lit = np.nan_to_num(earlier_charge([ramps[k]], 0)).sum(axis=axis - 1)
         # a line and its two neighbours: a misfit at a source reaches the next line
         near = np.maximum(lit, np.maximum(np.roll(lit, 1), np.roll(lit, -1)))
         light.append(np.broadcast_to(near <= np.median(lit), (len(m),) + lit.shape)
                      [first:][:, ok].ravel())
-    return tuple(np.concatenate(a) for a in (means, variances, light, beyond))
+    return tuple(np.concatenate(a) for a in (means, variances, light, beyond, pairs))
 
 
 class CorrelatedReadNoise(RampEffect):
@@ -282,15 +286,21 @@ class CorrelatedReadNoise(RampEffect):
     noise is the same where no light falls); and the share of the two
     variances that goes when each line's mean is taken less the frame's
     (``None`` once ``bias_drift`` is in the model: then the lines' means are
-    always taken so). The model keeps only the positive variances."""
+    always taken so). ``column_lag1``: the correlation of adjacent columns'
+    offsets, from the lag-1 covariance of the columns' means (less the
+    frame's) over twice their shared variance; not tested by the gap (it
+    moves no pixel's variance), it sets the simulated neighbour correlation
+    along x. The model keeps only the positive variances and a lag within
+    :attr:`lag_limit`."""
 
     limit = 3.0
+    lag_limit = 0.95  # the model's adjacent columns' correlation, at most this
 
     def fit(self, model, ramps, ln_n):
         drift = "bias_drift" in model.effects
         params, gain, dark, beyond = {}, 0.0, {}, 0.0
         for key, axis in (("row_variance_e2", 2), ("column_variance_e2", 1)):
-            m, v, low, mb = _line_means(model, ramps, axis)
+            m, v, low, mb, pairs = _line_means(model, ramps, axis)
             if drift:
                 m = mb
             q, line_gain = _shared_variance(m, v)
@@ -298,10 +308,15 @@ class CorrelatedReadNoise(RampEffect):
             dark[key] = (float(np.mean(m[low] ** 2 - v[low]) / 2.0) / q
                          if q > 0 and low.sum() >= 8 else None)
             gain += line_gain
-            beyond += max(_shared_variance(mb, v)[0], 0.0)
-        main = max(params, key=params.get)
-        kept = {key: max(v, 0.0) for key, v in params.items()}
-        shared = sum(kept.values())
+            q_beyond = max(_shared_variance(mb, v)[0], 0.0)
+            beyond += q_beyond
+        # adjacent columns' offsets alike: their means' lag-1 covariance, 2 q rho
+        params["column_lag1"] = (float(np.mean(pairs)) / (2.0 * q_beyond)
+                                 if q_beyond > 0 and pairs.size else 0.0)
+        main = max(("row_variance_e2", "column_variance_e2"), key=params.get)
+        kept = {key: max(params[key], 0.0) for key in ("row_variance_e2", "column_variance_e2")}
+        kept["column_lag1"] = min(max(params["column_lag1"], -self.lag_limit), self.lag_limit)
+        shared = kept["row_variance_e2"] + kept["column_variance_e2"]
         frame = None if drift or shared <= 0 else 1.0 - beyond / shared
         return (params, gain - len(self.params) * ln_n, self.added(model, kept),
                 (dark[main], frame))
@@ -462,7 +477,8 @@ RAMP_EFFECTS = {e.name: e for e in (
                 "charge generated at a uniform rate in every pixel, collected like light"),
     CorrelatedReadNoise("correlated_read_noise", "variance",
                         (Param("row_variance_e2", 0.0, -1e4, 1e5, 1.0),
-                         Param("column_variance_e2", 0.0, -1e4, 1e5, 1.0)),
+                         Param("column_variance_e2", 0.0, -1e4, 1e5, 1.0),
+                         Param("column_lag1", 0.0, -1.0, 1.0, 0.05)),
                         "read noise shared between the pixels of a row or a column"),
     BiasDrift("bias_drift", "variance",
               (Param("variance_e2", 0.0, -1e4, 1e5, 1.0),),

@@ -25,7 +25,8 @@ Procedure (:func:`discover_ramps`)
      pixels' own noise gives, ``2 q`` (a shared offset enters two
      increments), is the moment estimate of ``q``; evidence the Gaussian
      deviance of those means with and without ``q``, less ``ln n`` per
-     variance.
+     parameter; the adjacent columns' correlation from the lag-1
+     covariance of the columns' means.
    - ``bias_drift``: the same from the frame's means of the residuals, read
      by read (the rows' and columns' means are then taken less the frame's).
    - ``random_telegraph_noise``: the pixels whose whitened increments lie

@@ -347,7 +347,11 @@ def simulate_ramp(model, ramp, rng, extra=None):
     if shared.get("row_variance_e2", 0.0) > 0:
         noise += rng.normal(0.0, math.sqrt(shared["row_variance_e2"]), (m, ny, 1))
     if shared.get("column_variance_e2", 0.0) > 0:
-        noise += rng.normal(0.0, math.sqrt(shared["column_variance_e2"]), (m, 1, nx))
+        columns = rng.normal(0.0, math.sqrt(shared["column_variance_e2"]), (m, 1, nx))
+        rho = shared.get("column_lag1", 0.0)  # adjacent columns alike: AR(1) along x
+        for x in range(1, nx if rho else 0):
+            columns[..., x] = rho * columns[..., x - 1] + math.sqrt(1 - rho * rho) * columns[..., x]
+        noise += columns
     drift = model.effects.get("bias_drift", {}).get("variance_e2", 0.0)
     if drift > 0:
         noise += rng.normal(0.0, math.sqrt(drift), (m, 1, 1))

@@ -14,7 +14,9 @@ the physics, read by read:
 - Bias drift (``drift_rms``, e-): at each read one Gaussian offset added to
   every pixel of the frame (what reference pixels track).
 - Column offsets (``column_rms``, e-): at each read one Gaussian offset per
-  column (the 1/f noise of a column-parallel readout).
+  column (the 1/f noise of a column-parallel readout); ``column_lag``: a
+  column's offset correlated with the previous column's by that much (a
+  Gaussian AR(1) sequence along x, stationary: 1/f noise smooth across columns).
 """
 
 import numpy as np
@@ -44,14 +46,22 @@ def _couple(q, alpha):
     return out
 
 
-def drift_ramp(n, nreads, tframe, readnoise, rng, drift_rms=0.0, column_rms=0.0):
+def drift_ramp(n, nreads, tframe, readnoise, rng, drift_rms=0.0, column_rms=0.0,
+               column_lag=0.0):
     """``(rate, reads)`` of one ramp (module docstring)."""
     rate = spot_scene(n, rng)
     charge = np.cumsum(rng.poisson(np.broadcast_to(rate * tframe, (nreads, n, n)))
                        .astype(np.float64), axis=0)
     reads = _couple(charge, ALPHA) + rng.normal(0.0, readnoise, (nreads, n, n))
     reads += rng.normal(0.0, drift_rms, (nreads, 1, 1)) if drift_rms else 0.0
-    reads += rng.normal(0.0, column_rms, (nreads, 1, n)) if column_rms else 0.0
+    if column_rms:
+        shocks = rng.normal(0.0, 1.0, (nreads, n))
+        columns = np.empty_like(shocks)
+        columns[:, 0] = shocks[:, 0]
+        for x in range(1, n):
+            columns[:, x] = column_lag * columns[:, x - 1] + np.sqrt(
+                1.0 - column_lag ** 2) * shocks[:, x]
+        reads += column_rms * columns[:, None, :]
     return rate, reads
 
 
