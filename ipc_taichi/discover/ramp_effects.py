@@ -288,10 +288,9 @@ class CorrelatedReadNoise(RampEffect):
     (``None`` once ``bias_drift`` is in the model: then the lines' means are
     always taken so). ``column_lag1``: the correlation of adjacent columns'
     offsets, from the lag-1 covariance of the columns' means (less the
-    frame's) over twice their shared variance; not tested by the gap (it
-    moves no pixel's variance), it sets the simulated neighbour correlation
-    along x. The model keeps only the positive variances and a lag within
-    :attr:`lag_limit`."""
+    frame's) over twice their shared variance (:meth:`_lag`); not tested by
+    the gap (it moves no pixel's variance), it sets the simulated neighbour
+    correlation along x. The model keeps only the positive variances."""
 
     limit = 3.0
     lag_limit = 0.95  # the model's adjacent columns' correlation, at most this
@@ -310,16 +309,25 @@ class CorrelatedReadNoise(RampEffect):
             gain += line_gain
             q_beyond = max(_shared_variance(mb, v)[0], 0.0)
             beyond += q_beyond
-        # adjacent columns' offsets alike: their means' lag-1 covariance, 2 q rho
-        params["column_lag1"] = (float(np.mean(pairs)) / (2.0 * q_beyond)
-                                 if q_beyond > 0 and pairs.size else 0.0)
+        params["column_lag1"] = self._lag(pairs, q_beyond)  # the loop ended on the columns
         main = max(("row_variance_e2", "column_variance_e2"), key=params.get)
-        kept = {key: max(params[key], 0.0) for key in ("row_variance_e2", "column_variance_e2")}
-        kept["column_lag1"] = min(max(params["column_lag1"], -self.lag_limit), self.lag_limit)
+        kept = {key: max(v, 0.0) for key, v in params.items()}
+        kept["column_lag1"] = params["column_lag1"]
         shared = kept["row_variance_e2"] + kept["column_variance_e2"]
         frame = None if drift or shared <= 0 else 1.0 - beyond / shared
         return (params, gain - len(self.params) * ln_n, self.added(model, kept),
                 (dark[main], frame))
+
+    def _lag(self, pairs, q):
+        """Adjacent columns' offsets alike: the lag-1 covariance of the
+        columns' means, ``2 q rho``, where it stands out at 5 sigma (else 0),
+        within :attr:`lag_limit`."""
+        if q <= 0 or pairs.size < 2:
+            return 0.0
+        mean = float(np.mean(pairs))
+        if abs(mean) * math.sqrt(pairs.size) < RAMP_UNEXPLAINED_Z * float(np.std(pairs)):
+            return 0.0
+        return min(max(mean / (2.0 * q), -self.lag_limit), self.lag_limit)
 
     def contradiction(self, p, extra=None):
         if max(p["row_variance_e2"], p["column_variance_e2"]) <= 0:
