@@ -61,13 +61,28 @@ def test_pyxel_output_node_nonlinearity_is_classical_nonlinearity(tmp_path):
 def test_pyxel_correlated_pink_noise_is_correlated_read_noise(tmp_path):
     """correlated_pink_noise_cmos (6 e-, one generator read in pixel order):
     named correlated_read_noise, more along rows than columns (the read order)."""
-    report = _discover(tmp_path, "pink_noise")
+    report = _discover(tmp_path, "pink_noise", 3)
     assert _floor_excess(report) > 3
     step = report["steps"][0]
     assert step["effect"] == "correlated_read_noise"
     assert step["params"]["row_variance_e2"] > step["params"]["column_variance_e2"]
     assert 10.0 < step["params"]["row_variance_e2"] < 36.0
     assert step["gap_after"] < step["gap_before"]
+
+
+def test_pyxel_correlated_pink_noise_slow_part_is_bias_drift(tmp_path):
+    """The same at seed 1: half of what its lines share at a read is shared by
+    the whole frame (the 1/f noise's slowest part, over a read of the frame),
+    so correlated_read_noise is refused for it and bias_drift named, within
+    the pink noise's 36 e-^2."""
+    report = _discover(tmp_path, "pink_noise")
+    step = report["steps"][0]
+    # the start 3 scatters above its floor (0.018, as on the null ramps)
+    assert step["gap_before"] - step["floor_before"] > 3 * 0.018
+    assert report["missing_effects"] == ["bias_drift"] and report["complete"]
+    assert 2.0 < step["params"]["variance_e2"] < 36.0
+    assert step["gap_after"] < step["gap_before"]
+    assert "whole frame" in report["not_named"]["correlated_read_noise"]
 
 
 @pytest.mark.slow  # about 15 s: Pyxel compiles its persistence kernel (numba) on first use

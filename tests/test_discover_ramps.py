@@ -224,7 +224,8 @@ def test_a_ramp_record_is_all_the_search_needs(tmp_path, monkeypatch):
     assert report["not_named"]["toy_ramp"] == f"readnoise 10, duration {duration:g}"
     assert "toy_ramp" not in report["missing_effects"]
     assert RAMP_LIMITS == {"persistence": 0.05, "persistence_tau": 20.0, "dark_current": 1000.0,
-                           "correlated_read_noise": 3.0, "random_telegraph_noise": 0.05}
+                           "correlated_read_noise": 3.0, "bias_drift": 3.0,
+                           "random_telegraph_noise": 0.05}
 
 
 def test_cli_discover_reads_a_ramp_file(tmp_path, cli):

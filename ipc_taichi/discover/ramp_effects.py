@@ -35,13 +35,29 @@ its contradiction and its physical range (``docs/discovery_format.md``,
 ``correlated_read_noise``
     ``row_variance_e2``, ``column_variance_e2``: at each read an offset
     shared by every pixel of a row (a column), Gaussian of this variance
-    (e-^2): the 1/f noise of a readout channel. Contradicted when neither is
+    (e-^2): the 1/f noise of a readout channel; ``column_lag1`` the
+    correlation of adjacent columns' offsets (1/f noise smooth across
+    columns; each column's offset follows its neighbour's as an AR(1)
+    sequence along x). Contradicted when neither is
     positive, or when the lines with no light on or next to them (by SCENE)
     show under half of it (a misfit of the signal at the sources, e.g. brighter-fatter,
-    raises the lines through them only); outside the physical range when the
+    raises the lines through them only), or when over half of it is an
+    offset of the whole frame (``bias_drift``'s: then rows and columns are
+    fitted beyond it); outside the physical range when the
     shared RMS exceeds 3 times ``READNOIS`` (a read noise is not several
     times what the detector's own characterisation says, as for
     ``excess_read_noise``).
+``bias_drift``
+    ``variance_e2``: at each read an offset shared by every pixel of the
+    frame, Gaussian of this variance (e-^2): the readout's bias drifting
+    from read to read, what reference pixels track and the pipeline's
+    reference-pixel step removes (the rows' and columns' offsets of
+    ``correlated_read_noise`` are taken beyond it). Contradicted when it is
+    not positive, when the dark pixels (SCENE at or under the median) show
+    under half of it (a misfit of the signal), or when the frame's means
+    summed over each ramp's reads lie more than 5 sigma from 0 (offsets per
+    read do not accumulate, a rate does); outside the physical range when
+    its RMS exceeds 3 times ``READNOIS``.
 ``random_telegraph_noise``
     ``fraction``, ``jump_e``: that share of the pixels switches between two
     levels ``jump_e`` apart from read to read; such pixels are given their own
@@ -68,11 +84,12 @@ from .ramps import (
 )
 from .record import Effect, Param
 
-__all__ = ["RampEffect", "Persistence", "DarkCurrent", "CorrelatedReadNoise",
+__all__ = ["RampEffect", "Persistence", "DarkCurrent", "CorrelatedReadNoise", "BiasDrift",
            "RandomTelegraphNoise", "RAMP_EFFECTS", "ramp_contradiction", "ramp_implausible",
            "RAMP_LIMITS", "DARK_SHARE", "released", "earlier_charge", "dark_charge"]
 
 DARK_SHARE = 0.5  # shared read noise: the dark lines must show this share of it
+FRAME_SHARE = 0.5  # rows' and columns' offsets: at most this share of them the frame's
 
 
 def _cholesky(model, ramps, k):
@@ -228,8 +245,10 @@ def _line_means(model, ramps, axis):
     """The means over each row (``axis`` 2) or column (1) of the increments'
     residuals after read 0 (from read 0 where the first read was subtracted),
     their variances from the pixels' own noise, and whether each line and its
-    two neighbours are dark (SCENE at or under the lines' median)."""
-    means, variances, light = [], [], []
+    two neighbours are dark (SCENE at or under the lines' median); the
+    means less the frame's at each read (what the whole frame shares is
+    ``bias_drift``'s); and the products of those of adjacent lines."""
+    means, variances, light, beyond, pairs = [], [], [], [], []
     for k in range(len(ramps)):
         _, d, valid, var = _cholesky(model, ramps, k)
         full = np.zeros((d.shape[0],) + valid.shape)
@@ -239,45 +258,84 @@ def _line_means(model, ramps, axis):
         ok = count > 1
         m = full.sum(axis=axis)[:, ok] / count[ok]
         v = vfull.sum(axis=axis)[:, ok] / count[ok] ** 2
+        # less the frame's mean at each read (``bias_drift``'s), rescaled so
+        # that a line's share keeps its variance (1 - 1 / lines of it is lost)
+        lines = int(ok.sum())
+        mb = m if lines < 2 else (m - full.sum(axis=(1, 2))[:, None] / count.sum()) * math.sqrt(
+            lines / (lines - 1))
         # read 0 holds one offset, the others two (and read 0 too when FIRSTSUB)
         first = 0 if ramps[k].first_subtracted else 1
         means.append(m[first:].ravel())
+        beyond.append(mb[first:].ravel())
+        pairs.append((mb[first:, :-1] * mb[first:, 1:]).ravel())
         variances.append(v[first:].ravel())
         lit = np.nan_to_num(earlier_charge([ramps[k]], 0)).sum(axis=axis - 1)
         # a line and its two neighbours: a misfit at a source reaches the next line
         near = np.maximum(lit, np.maximum(np.roll(lit, 1), np.roll(lit, -1)))
         light.append(np.broadcast_to(near <= np.median(lit), (len(m),) + lit.shape)
                      [first:][:, ok].ravel())
-    return np.concatenate(means), np.concatenate(variances), np.concatenate(light)
+    return tuple(np.concatenate(a) for a in (means, variances, light, beyond, pairs))
 
 
 class CorrelatedReadNoise(RampEffect):
     """``row_variance_e2``, ``column_variance_e2`` (module docstring);
     :attr:`limit` the largest shared RMS in ``READNOIS``. The fit
-    (:mod:`.ramp_search`, step 2) returns as ``extra`` the dark share: for
-    the direction with the larger variance, its estimate from the dark lines
-    over that from all, ``None`` with under 8 of them (a read noise is the
-    same where no light falls); the model keeps only the positive variances."""
+    (:mod:`.ramp_search`, step 2) returns as ``extra`` ``(dark share, frame
+    share)``: for the direction with the larger variance, its estimate from
+    the dark lines over that from all, ``None`` with under 8 of them (a read
+    noise is the same where no light falls); and the share of the two
+    variances that goes when each line's mean is taken less the frame's
+    (``None`` once ``bias_drift`` is in the model: then the lines' means are
+    always taken so). ``column_lag1``: the correlation of adjacent columns'
+    offsets, from the lag-1 covariance of the columns' means (less the
+    frame's) over twice their shared variance (:meth:`_lag`); not tested by
+    the gap (it moves no pixel's variance), it sets the simulated neighbour
+    correlation along x. The model keeps only the positive variances."""
 
     limit = 3.0
+    lag_limit = 0.95  # the model's adjacent columns' correlation, at most this
 
     def fit(self, model, ramps, ln_n):
-        params, gain, dark = {}, 0.0, {}
+        drift = "bias_drift" in model.effects
+        params, gain, dark, beyond = {}, 0.0, {}, 0.0
         for key, axis in (("row_variance_e2", 2), ("column_variance_e2", 1)):
-            m, v, low = _line_means(model, ramps, axis)
-            q = float(np.mean(m * m - v) / 2.0)
+            m, v, low, mb, pairs = _line_means(model, ramps, axis)
+            if drift:
+                m = mb
+            q, line_gain = _shared_variance(m, v)
             params[key] = q
             dark[key] = (float(np.mean(m[low] ** 2 - v[low]) / 2.0) / q
                          if q > 0 and low.sum() >= 8 else None)
-            if q > 0:
-                gain += float(np.sum(m * m / v - m * m / (v + 2 * q) - np.log((v + 2 * q) / v)))
-        main = max(params, key=params.get)
+            gain += line_gain
+            q_beyond = max(_shared_variance(mb, v)[0], 0.0)
+            beyond += q_beyond
+        params["column_lag1"] = self._lag(pairs, q_beyond)  # the loop ended on the columns
+        main = max(("row_variance_e2", "column_variance_e2"), key=params.get)
         kept = {key: max(v, 0.0) for key, v in params.items()}
-        return params, gain - len(self.params) * ln_n, self.added(model, kept), dark[main]
+        kept["column_lag1"] = params["column_lag1"]
+        shared = kept["row_variance_e2"] + kept["column_variance_e2"]
+        frame = None if drift or shared <= 0 else 1.0 - beyond / shared
+        return (params, gain - len(self.params) * ln_n, self.added(model, kept),
+                (dark[main], frame))
+
+    def _lag(self, pairs, q):
+        """Adjacent columns' offsets alike: the lag-1 covariance of the
+        columns' means, ``2 q rho``, where it stands out at 5 sigma (else 0),
+        within :attr:`lag_limit`."""
+        if q <= 0 or pairs.size < 2:
+            return 0.0
+        mean = float(np.mean(pairs))
+        if abs(mean) * math.sqrt(pairs.size) < RAMP_UNEXPLAINED_Z * float(np.std(pairs)):
+            return 0.0
+        return min(max(mean / (2.0 * q), -self.lag_limit), self.lag_limit)
 
     def contradiction(self, p, extra=None):
         if max(p["row_variance_e2"], p["column_variance_e2"]) <= 0:
             return "rows and columns share less noise than independent pixels would"
+        extra, frame = extra if isinstance(extra, tuple) else (extra, None)
+        if frame is not None and frame > FRAME_SHARE:
+            return (f"{100 * frame:.0f} % of what the lines share at a read is shared by the "
+                    "whole frame: an offset of the frame (bias_drift), not of rows or columns")
         if extra is not None and extra < DARK_SHARE:
             return (f"the lines share it where light falls, not where none does (the lines "
                     f"with no light on or next to them show {100 * extra:.0f} % of it): a "
@@ -289,6 +347,87 @@ class CorrelatedReadNoise(RampEffect):
         if readnoise and shared > self.limit * readnoise:
             return (f"{shared:.1f} e- shared by rows and columns, "
                     f"{shared / readnoise:.1f} times READNOIS")
+        return None
+
+
+def _frame_means(model, ramps):
+    """Per read (after read 0, from read 0 where the first read was
+    subtracted, as :func:`_line_means`), of every ramp: the mean over the
+    valid pixels of the increments' residuals and its variance from the
+    pixels' own noise and the rows' and columns' shared offsets
+    (``correlated_read_noise`` in ``model``); the same over the dark pixels
+    (SCENE at or under the median); and per ramp the sum of the means with
+    its variance without a drift (``drift`` 0) and per unit of it."""
+    c = model.effects.get("correlated_read_noise", {})
+    out = {key: [] for key in ("m", "v", "dark", "v_dark", "sums")}
+    for k, ramp in enumerate(ramps):
+        _, d, valid, var = _cholesky(model, ramps, k)
+        first = 0 if ramp.first_subtracted else 1
+        ny, nx = valid.shape
+        lines = 2.0 * (max(c.get("row_variance_e2", 0.0), 0.0) / ny
+                       + max(c.get("column_variance_e2", 0.0), 0.0) / nx)
+        light = earlier_charge([ramp], 0)[valid]
+        dark = light <= np.median(light)
+        m = d[first:].mean(axis=1)
+        v = var[first:].sum(axis=1) / d.shape[1] ** 2 + lines
+        out["m"].append(m)
+        out["v"].append(v)
+        out["dark"].append(d[first:, dark].mean(axis=1))
+        out["v_dark"].append(var[first:, dark].sum(axis=1) / max(int(dark.sum()), 1) ** 2 + lines)
+        # the offsets of neighbouring increments cancel: the sum holds two
+        out["sums"].append((float(m.sum()), float(v.sum()), 2.0))
+    return {key: (np.concatenate(val) if key != "sums" else val) for key, val in out.items()}
+
+
+def _shared_variance(m, v):
+    """The moment estimate ``q`` of a variance shared by ``m`` (means whose
+    own noise is ``v``, a shared offset entering each twice: ``2 q``) and
+    the Gaussian deviance of ``m`` with and without it (0 when ``q <= 0``)."""
+    q = float(np.mean(m * m - v) / 2.0)
+    gain = (float(np.sum(m * m / v - m * m / (v + 2 * q) - np.log((v + 2 * q) / v)))
+            if q > 0 else 0.0)
+    return q, gain
+
+
+class BiasDrift(RampEffect):
+    """``variance_e2`` (module docstring); :attr:`limit` its RMS in
+    ``READNOIS``. The fit (:mod:`.ramp_search`, step 2): the means over the
+    frame of the increments' residuals, read by read (:func:`_frame_means`),
+    their variance beyond the pixels' own noise ``2 q``
+    (:func:`_shared_variance`); returns as ``extra`` ``(dark share, z)``:
+    the estimate from the dark pixels alone over that from all (``None``
+    when ``q <= 0``), and how many sigma from 0 the sums of each ramp's
+    means lie (offsets per read do not accumulate; a rate does)."""
+
+    limit = 3.0
+
+    def fit(self, model, ramps, ln_n):
+        f = _frame_means(model, ramps)
+        q, gain = _shared_variance(f["m"], f["v"])
+        share = (float(np.mean(f["dark"] ** 2 - f["v_dark"]) / 2.0) / q) if q > 0 else None
+        total = sum(s for s, _, _ in f["sums"])
+        spread = sum(v + n * max(q, 0.0) for _, v, n in f["sums"])
+        params = {"variance_e2": q}
+        kept = {"variance_e2": max(q, 0.0)}
+        return (params, gain - len(self.params) * ln_n, self.added(model, kept),
+                (share, total / math.sqrt(spread)))
+
+    def contradiction(self, p, extra=None):
+        if p["variance_e2"] <= 0:
+            return "the frames' means scatter less than independent pixels would"
+        share, z = extra if extra is not None else (None, 0.0)
+        if share is not None and share < DARK_SHARE:
+            return (f"the frame's offsets are where light falls, not where none does (the "
+                    f"dark pixels show {100 * share:.0f} % of it): a misfit of the signal")
+        if abs(z) > RAMP_UNEXPLAINED_Z:
+            return (f"the frame's means keep one sign over the reads ({z:+.1f} sigma): a rate "
+                    "(dark current, a SCENE error), not an offset per read")
+        return None
+
+    def implausible(self, p, readnoise=None, cov=None, duration=None):
+        rms = math.sqrt(max(p["variance_e2"], 0.0))
+        if readnoise and rms > self.limit * readnoise:
+            return f"{rms:.1f} e- shared by the frame, {rms / readnoise:.1f} times READNOIS"
         return None
 
 
@@ -346,8 +485,12 @@ RAMP_EFFECTS = {e.name: e for e in (
                 "charge generated at a uniform rate in every pixel, collected like light"),
     CorrelatedReadNoise("correlated_read_noise", "variance",
                         (Param("row_variance_e2", 0.0, -1e4, 1e5, 1.0),
-                         Param("column_variance_e2", 0.0, -1e4, 1e5, 1.0)),
+                         Param("column_variance_e2", 0.0, -1e4, 1e5, 1.0),
+                         Param("column_lag1", 0.0, -1.0, 1.0, 0.05)),
                         "read noise shared between the pixels of a row or a column"),
+    BiasDrift("bias_drift", "variance",
+              (Param("variance_e2", 0.0, -1e4, 1e5, 1.0),),
+              "an offset at each read shared by every pixel of the frame"),
     RandomTelegraphNoise("random_telegraph_noise", "pixels",
                          (Param("fraction", 0.0, 0.0, 1.0, 1e-3),
                           Param("jump_e", 0.0, -1e5, 1e5, 1.0)),
@@ -365,7 +508,8 @@ def ramp_contradiction(name, params, extra=None):
     """Why ``params`` contradict ramp effect ``name``, or ``None``. ``extra``:
     for telegraph noise the share of its pixels whose increments go both
     ways, for shared read noise the share of it the dark lines show (a read
-    noise is the same where no light falls)."""
+    noise is the same where no light falls) or that pair with the share the
+    whole frame holds, for the bias drift ``(dark share, z of the sums)``."""
     return RAMP_EFFECTS[name].contradiction(params, extra)
 
 

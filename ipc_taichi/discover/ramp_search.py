@@ -1,5 +1,5 @@
 """Name what a ramp file's time structure shows and the frame model lacks:
-``persistence``, ``dark_current``, ``correlated_read_noise``,
+``persistence``, ``dark_current``, ``correlated_read_noise``, ``bias_drift``,
 ``random_telegraph_noise`` (:mod:`.ramp_effects`) and the frame effects
 ``brighter_fatter``, ``signal_dependent_ipc``, ``classical_nonlinearity`` and
 the IPC geometry terms (``diagonal_ipc``, ``anisotropic_ipc``,
@@ -25,7 +25,10 @@ Procedure (:func:`discover_ramps`)
      pixels' own noise gives, ``2 q`` (a shared offset enters two
      increments), is the moment estimate of ``q``; evidence the Gaussian
      deviance of those means with and without ``q``, less ``ln n`` per
-     variance.
+     parameter; the adjacent columns' correlation from the lag-1
+     covariance of the columns' means.
+   - ``bias_drift``: the same from the frame's means of the residuals, read
+     by read (the rows' and columns' means are then taken less the frame's).
    - ``random_telegraph_noise``: the pixels whose whitened increments lie
      in the ``1e-4`` chi-square tail, when chance (Poisson) gives as many
      with a probability under that of 5 sigma; each is given its own

@@ -282,10 +282,13 @@ class RampModel:
 
     def read_variance(self):
         """Each read's noise variance per pixel: the frame's plus what rows and
-        columns share (``correlated_read_noise``)."""
+        columns share (``correlated_read_noise``) and the whole frame shares
+        (``bias_drift``)."""
         c = self.effects.get("correlated_read_noise", {})
+        b = self.effects.get("bias_drift", {})
         return (self.frame.read_variance() + max(c.get("row_variance_e2", 0.0), 0.0)
-                + max(c.get("column_variance_e2", 0.0), 0.0))
+                + max(c.get("column_variance_e2", 0.0), 0.0)
+                + max(b.get("variance_e2", 0.0), 0.0))
 
     def afterglow(self, ramps, k):
         """The charge the ramp effects add to each read of ramp ``k`` (before
@@ -339,7 +342,7 @@ def simulate_ramp(model, ramp, rng, extra=None):
     expected collected charge per read (``extra`` added), its increments
     drawn as independent Poisson charges and summed, read out at each read,
     read noise per read, and the offsets rows and columns share at each read
-    (``correlated_read_noise``)."""
+    (``correlated_read_noise``) and the whole frame shares (``bias_drift``)."""
     model = _as_ramp_model(model)
     frame = model.frame
     c = frame.collected(_charge_scene(ramp), ramp.oversample)
@@ -353,7 +356,14 @@ def simulate_ramp(model, ramp, rng, extra=None):
     if shared.get("row_variance_e2", 0.0) > 0:
         noise += rng.normal(0.0, math.sqrt(shared["row_variance_e2"]), (m, ny, 1))
     if shared.get("column_variance_e2", 0.0) > 0:
-        noise += rng.normal(0.0, math.sqrt(shared["column_variance_e2"]), (m, 1, nx))
+        columns = rng.normal(0.0, math.sqrt(shared["column_variance_e2"]), (m, 1, nx))
+        rho = shared.get("column_lag1", 0.0)  # adjacent columns alike: AR(1) along x
+        for x in range(1, nx if rho else 0):
+            columns[..., x] = rho * columns[..., x - 1] + math.sqrt(1 - rho * rho) * columns[..., x]
+        noise += columns
+    drift = model.effects.get("bias_drift", {}).get("variance_e2", 0.0)
+    if drift > 0:
+        noise += rng.normal(0.0, math.sqrt(drift), (m, 1, 1))
     if ramp.first_subtracted:
         noise = noise[1:] - noise[:1]
     out = frame.readout(charge) + noise
