@@ -98,3 +98,24 @@ def test_real_fgs_frame_offsets(tmp_path, cli):
     floor, scatter = removed["neighbour_floor"]["x"]
     assert abs(removed["neighbour_correlation"]["x"] - floor) < 3 * scatter
     assert "light falls" in removed["not_named"]["bias_drift"]
+
+
+def test_nan_scene_pixels_are_left_out_not_fatal(tmp_path):
+    """A SCENE with non-finite pixels (a bad pixel of the rate map): the search
+    runs (a NaN rate has no Poisson draw: it used to stop the floor's
+    simulation), those pixels and their neighbours within 2 are left out, and
+    the null ramp still names nothing."""
+    from astropy.io import fits
+
+    from ipc_taichi.discover.ramps import read_ramps
+
+    path = _drift_file(tmp_path, 21)
+    with fits.open(path, mode="update") as hdul:
+        hdul["SCENE", 1].data[10, 12] = float("nan")
+        hdul["SCENE", 2].data[20:22, 5] = float("inf")
+    ramps = read_ramps(path).ramps
+    assert ramps[0].holes.sum() == 25 and ramps[1].holes.sum() == 30 and ramps[2].holes is None
+    assert not ramps[0].valid[8:13, 10:15].any() and ramps[0].valid[8, 15]
+    assert all(bool(r.valid.any()) for r in ramps)
+    report = discover_ramps(path)
+    assert report["missing_effects"] == [] and report["complete"] is True

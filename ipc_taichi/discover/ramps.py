@@ -58,17 +58,19 @@ import os
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.ndimage import binary_dilation
 
 from ..detector import read_noise
 from ..errors import IPCInputError
 from ..fitsio import atomic_output
+from .diagnostics import fill_scene
 from .labdata import read_header
 from .model import DetectorModel
 from .ramp_cross import CROSS_LAGS, bf_kernel_of, collect_reads, cross_products, cross_read_excess
 from .sampling import block_sum
 
 __all__ = ["RampPair", "RampData", "RampModel", "whitened", "read_ramps", "write_ramps",
-           "is_ramp_file",
+           "is_ramp_file", "with_scene_holes",
            "read_times", "expected_reads", "expected_mean", "increment_factors", "whiten",
            "simulate_ramp", "ramp_gap", "describe_ramp_misfit", "earlier_charge", "released",
            "dark_charge",
@@ -90,7 +92,9 @@ class RampPair:
     ``SCENEVAR`` HDU of the same ``EXTVER``, (e-/s)^2, 2-D, or ``None``): the
     variance of a SCENE estimated from data independent of these reads, so
     read ``i`` holds the SCENE's error times ``t_i`` (whitened and simulated
-    with the rest)."""
+    with the rest); ``holes`` (2-D bool at the reads' shape, or ``None``): the
+    pixels near a SCENE pixel that was not finite, left out of the statistics
+    (:func:`with_scene_holes`: ``rate`` then holds a filled value there)."""
 
     extver: int
     rate: np.ndarray
@@ -99,12 +103,27 @@ class RampPair:
     oversample: int = 1
     first_subtracted: bool = False
     scene_var: object = None
+    holes: object = None
 
     @property
     def valid(self):
-        """Pixels finite in SCENE and in every read."""
+        """Pixels finite in SCENE and in every read, away from SCENE's holes."""
         total = block_sum(self.rate, self.oversample)
-        return np.isfinite(total) & np.all(np.isfinite(self.reads), axis=0)
+        valid = np.isfinite(total) & np.all(np.isfinite(self.reads), axis=0)
+        return valid if self.holes is None else valid & ~self.holes
+
+
+def with_scene_holes(rate, oversample):
+    """``(rate, holes)``: a SCENE whose non-finite pixels are filled (so the
+    model can be simulated: a NaN rate has no Poisson draw) and the pixels
+    within 2 of one at the reads' resolution (their expected charge depends
+    on the unknown rate through the coupling), as the frames' statistics
+    leave them out (:func:`~.diagnostics.valid_mask`); ``holes`` is ``None``
+    for a finite SCENE."""
+    bad = ~np.isfinite(block_sum(rate, oversample))
+    if not bad.any():
+        return rate, None
+    return fill_scene(rate), binary_dilation(bad, structure=np.ones((5, 5), bool))
 
 
 @dataclass
@@ -179,8 +198,9 @@ def read_ramps(path):
             if var is not None and (n != 1 or var.shape != reads.shape[1:]):
                 raise IPCInputError(f"{path}[SCENEVAR,{ver}]: shape {var.shape} is not the "
                                     f"reads' {reads.shape[1:]} (or SCENE has OVERSAMP > 1)")
+            rate, holes = with_scene_holes(rate, n)
             ramps.append(RampPair(ver, rate, reads, read_times(hdu.header, len(reads), label),
-                                  n, first, var))
+                                  n, first, var, holes))
     if not ramps:
         raise IPCInputError(f"{path}: no 3-D MEASURED (ramp) HDU")
     return RampData(path, readnoise, shot_noise, law, ramps)
