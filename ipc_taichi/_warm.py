@@ -14,6 +14,7 @@ import collections
 import numpy as np
 
 from . import runtime
+from ._lanes import lane_count
 
 __all__ = ["WarmStart", "warm_kernels", "lanes_warm_kernels"]
 
@@ -123,8 +124,6 @@ class LaneShift:
 
 def _lane_width(ws):
     """Pixels per vector of a ``lanes`` workspace's arrays."""
-    from ._lanes import lane_count
-
     return lane_count("f64" if ws.dtype == np.float64 else "f32")
 
 

@@ -61,8 +61,16 @@ from ._engine import (
     workspace_cache_info,
 )
 from ._kernels import FAN_IN, KernelConfig, get_frame_kernels, get_reduce_kernel, tree_rows
-from ._lanes import LANES_ENV, host_vector_unit, lane_count, vector_extensions, vector_unit
+from ._lanes import (
+    LANES_ENV,
+    aligned_zeros,
+    host_vector_unit,
+    lane_count,
+    vector_extensions,
+    vector_unit,
+)
 from ._layouts import LAYOUTS, StepPlan, default_layout, get_step_kernel, kernel_layout
+from ._warm import LaneShift, lanes_warm_kernels
 
 __all__ = [
     # workspaces
@@ -78,7 +86,9 @@ __all__ = [
     "tree_rows",
     "FAN_IN", "make_alpha", "make_exp", "kernel_law_kind", "clear_kernels",
     "default_layout", "LANES_ENV", "vector_unit", "host_vector_unit", "lane_count",
-    "vector_extensions",
+    "vector_extensions", "aligned_zeros",
+    # warm starts on the lanes layout
+    "LaneShift", "lanes_warm_kernels",
     # settings for a while
     "device_buffers", "pixel_runs", "reduction_fan_in", "vector_unit_set", "step_kernels_built",
 ]

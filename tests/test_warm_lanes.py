@@ -6,9 +6,8 @@ import numpy as np
 import pytest
 
 import ipc_taichi
-from ipc_taichi import _warm
-from ipc_taichi._lanes import aligned_zeros, lane_count
 from ipc_taichi.datasets import star_field
+from ipc_taichi.engine import LaneShift, aligned_zeros, lane_count, lanes_warm_kernels
 
 
 @pytest.mark.parametrize("precision", ["f64", "f32"])
@@ -21,7 +20,7 @@ def test_lanes_warm_kernels_match_the_formula(precision, rng):
         src, measured, c1, c2 = (aligned_zeros(shape, dtype) for _ in range(4))
         for a in (src, measured, c1, c2):
             a[...] = rng.normal(0.0, 1000.0, shape)
-        kernels = _warm.lanes_warm_kernels(precision, lanes)
+        kernels = lanes_warm_kernels(precision, lanes)
         kept = aligned_zeros(shape, dtype)
         kernels.keep(*(a.reshape(-1, lanes) for a in (src, measured, kept)))
         np.testing.assert_array_equal(kept, src - measured)
@@ -39,8 +38,8 @@ def test_warm_lanes_path_taken_and_agrees_with_the_sweeps(cpu, monkeypatch):
     rate = star_field(64, seed=5) / 6 + 40.0
     measured = ipc_taichi.couple(np.stack([rate * (g + 1) for g in range(6)]), law="donlon2018")
     starts = []
-    add_to = _warm.LaneShift.add_to
-    monkeypatch.setattr(_warm.LaneShift, "add_to",
+    add_to = LaneShift.add_to
+    monkeypatch.setattr(LaneShift, "add_to",
                         lambda self, ws: (starts.append(self.warm.kept), add_to(self, ws)))
     lanes, lanes_info = ipc_taichi.decouple(measured, law="donlon2018", layout="lanes",
                                             full_output=True, warm_start=True)
