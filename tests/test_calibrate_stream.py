@@ -3,8 +3,8 @@ whole-file reader gives: the same charge and mask, the same block sums (to
 summation order when a block is cut into row strips), the same noise sums of
 the map; and the benchmark's generator writes ramps a detector would.
 
-The sectioned path is forced on small files by lowering
-``stream.STREAM_BYTES`` (and ``STRIP_BYTES``, to cut blocks into strips).
+The sectioned path is forced on small files (``read_frames(..., sections=True)``;
+``stream.STRIP_BYTES`` lowered to cut blocks into strips).
 """
 
 import numpy as np
@@ -43,17 +43,19 @@ def _ramp_file(path, seed, saturate=None, dq=True):
     return str(path)
 
 
-@pytest.fixture
-def sectioned(monkeypatch):
-    """Every 4-D flat read by sections."""
-    monkeypatch.setattr(stream, "STREAM_BYTES", 0)
-
-
 def _both(paths, monkeypatch):
     whole = [inputs.read_frames(p, role="flat") for p in paths]
-    monkeypatch.setattr(stream, "STREAM_BYTES", 0)
-    lazy = [inputs.read_frames(p, role="flat") for p in paths]
+    lazy = [inputs.read_frames(p, role="flat", sections=True) for p in paths]
     return whole, lazy
+
+
+def test_flats_by_sections_when_all_together_are_large(tmp_path, monkeypatch):
+    """The decision counts every flat (8 ramps of 671 MB at 2048^2 are 5 GB)."""
+    paths = [_ramp_file(tmp_path / f"f{k}.fits", k, dq=False) for k in range(3)]
+    one = 8 * np.prod(SHAPE)
+    monkeypatch.setattr(stream, "STREAM_BYTES", 2 * one)
+    assert stream.flats_by_sections(paths) and not stream.flats_by_sections(paths[:2])
+    assert not stream.flats_by_sections([str(tmp_path / "missing.fits")])
 
 
 @pytest.mark.parametrize("saturate", [None, 20000])
@@ -70,22 +72,22 @@ def test_sections_read_as_the_whole_file(tmp_path, monkeypatch, saturate):
     np.testing.assert_array_equal(lazy.mask[0, 1:4, :, ::3], whole.mask[0, 1:4, :, ::3])
 
 
-def test_a_lazy_ramp_is_never_held_whole(tmp_path, sectioned):
-    frames = inputs.read_frames(_ramp_file(tmp_path / "f.fits", 4), role="flat")
+def test_a_lazy_ramp_is_never_held_whole(tmp_path):
+    frames = inputs.read_frames(_ramp_file(tmp_path / "f.fits", 4), role="flat", sections=True)
     with pytest.raises(TypeError, match="never held whole"):
         np.asarray(frames.data)
     with pytest.raises(IndexError):
         frames.data[..., 0]
 
 
-def test_a_file_all_masked_is_refused_by_sections(tmp_path, sectioned):
+def test_a_file_all_masked_is_refused_by_sections(tmp_path):
     from ipc_taichi.errors import IPCInputError
 
     path = _ramp_file(tmp_path / "f.fits", 5, dq=False)
     with fits.open(path, mode="update") as h:
         h.append(fits.ImageHDU(np.ones(SHAPE[1:], np.uint32), name="PIXELDQ"))
     with pytest.raises(IPCInputError, match="every pixel of this flat ramp is masked"):
-        inputs.read_frames(path, role="flat")
+        inputs.read_frames(path, role="flat", sections=True)
 
 
 @pytest.mark.parametrize("strip_bytes", [None, 4000])

@@ -29,7 +29,7 @@ import time
 
 import numpy as np
 
-__all__ = ["write_ramp", "dark_reads", "flat_reads", "make_set", "measure_full",
+__all__ = ["write_ramp", "dark_reads", "flat_reads", "make_set", "measure_full", "measure_on",
            "calibrate_full_section", "GAIN", "BIAS", "ALPHA", "FLAT_LEVEL"]
 
 GAIN = 1.8
@@ -127,56 +127,102 @@ def make_set(folder, size, nflats=8, groups=20, dark_groups=10):
     return dark, flats
 
 
+RSS_LIMIT = 7.5e9
+"""Bytes: a child whose resident memory passes this is stopped (the machine is
+shared; the must-show is a peak under 8 GB)."""
+
+
+def _rss(pid):
+    try:
+        with open(f"/proc/{pid}/status") as f:
+            for line in f:
+                if line.startswith("VmRSS:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return 0
+
+
 def _child(args, env=None):
-    """Run ``args``; (seconds, peak RSS bytes of that child, return code, stderr tail)."""
+    """Run ``args``; (seconds, peak RSS bytes of that child, return code, stderr
+    tail). Stopped (SIGKILL, said in the tail) past :data:`RSS_LIMIT`."""
+    import signal
+    import threading
+
     start = time.perf_counter()
     proc = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env)
+    stopped = []
+
+    def watch():
+        while proc.returncode is None:
+            if _rss(proc.pid) > RSS_LIMIT:
+                stopped.append(True)
+                os.kill(proc.pid, signal.SIGKILL)
+                return
+            time.sleep(0.5)
+
+    threading.Thread(target=watch, daemon=True).start()
     err = proc.stderr.read().decode(errors="replace")
     _, status, usage = os.wait4(proc.pid, 0)
     proc.returncode = os.waitstatus_to_exitcode(status)
+    if stopped:
+        err += f"\nstopped: resident memory passed {RSS_LIMIT / 1e9:g} GB"
     return time.perf_counter() - start, usage.ru_maxrss * 1024, proc.returncode, err[-2000:]
 
 
 def measure_full(size, nflats=8, groups=20, dark_groups=10, parent=None):
     """Make the set (in a fresh process), run ``ipc-taichi calibrate`` on it (in
     another), delete it; the row of numbers."""
-    env = dict(os.environ, IPC_TAICHI_ARCH=os.environ.get("IPC_TAICHI_ARCH", "cpu"))
     folder = tempfile.mkdtemp(prefix="calfull_", dir=parent)
     try:
         made = _child([sys.executable, "-m", "ipc_taichi.bench.calfull", "--make", folder,
-                       str(size), str(nflats), str(groups), str(dark_groups)], env)
+                       str(size), str(nflats), str(groups), str(dark_groups)], _env())
         if made[2]:
             raise RuntimeError(f"making the set failed: {made[3]}")
-        names = sorted(os.listdir(folder))
-        disk = sum(os.path.getsize(os.path.join(folder, n)) for n in names)
-        flats = [os.path.join(folder, n) for n in names if n.startswith("flat_")]
-        model = os.path.join(folder, "model.json")
-        report = os.path.join(folder, "report.json")
-        run = _child([sys.executable, "-m", "ipc_taichi.cli", "calibrate", "--darks",
-                      os.path.join(folder, "dark.fits"), "--flats", *flats, "-o", model,
-                      "--report", report], env)
-        if run[2]:
-            raise RuntimeError(f"calibrate failed: {run[3]}")
-        with open(report) as f:
-            rep = json.load(f)
+        row = measure_on(folder)
     finally:
         shutil.rmtree(folder, ignore_errors=True)
-    fit = rep.get("fit", {})
-    return {"size": int(size), "flats": f"{nflats} x {groups} x {size}^2",
+    return {**row, "make_s": made[0], "make_peak_gb": made[1] / 1e9}
+
+
+def _env():
+    return dict(os.environ, IPC_TAICHI_ARCH=os.environ.get("IPC_TAICHI_ARCH", "cpu"))
+
+
+def measure_on(folder):
+    """``ipc-taichi calibrate`` in a fresh process on the set in ``folder``
+    (:func:`make_set`'s files): the row of numbers (no ``make_*``)."""
+    from astropy.io import fits
+
+    names = sorted(n for n in os.listdir(folder) if n.endswith(".fits"))
+    disk = sum(os.path.getsize(os.path.join(folder, n)) for n in names)
+    flats = [os.path.join(folder, n) for n in names if n.startswith("flat_")]
+    dark = os.path.join(folder, "dark.fits")
+    shapes = [fits.getheader(p, "SCI") for p in (dark, flats[0])]
+    size, groups, dark_groups = shapes[1]["NAXIS1"], shapes[1]["NAXIS3"], shapes[0]["NAXIS3"]
+    model = os.path.join(folder, "model.json")
+    report = os.path.join(folder, "report.json")
+    load = os.getloadavg()[0]
+    run = _child([sys.executable, "-m", "ipc_taichi.cli", "calibrate", "--darks", dark,
+                  "--flats", *flats, "-o", model, "--report", report, "--overwrite"], _env())
+    if run[2]:
+        raise RuntimeError(f"calibrate failed: {run[3]}")
+    with open(report) as f:
+        rep = json.load(f)
+    return {"size": int(size), "flats": f"{len(flats)} x {groups} x {size}^2",
             "dark": f"{dark_groups} x {size}^2", "set_gb": disk / 1e9,
-            "make_s": made[0], "make_peak_gb": made[1] / 1e9,
-            "calibrate_s": run[0], "calibrate_peak_gb": run[1] / 1e9,
-            "chosen": fit.get("chosen"), "alpha_x": _alpha_x(rep),
+            "calibrate_s": run[0], "calibrate_peak_gb": run[1] / 1e9, "load_before": load,
+            "chosen": rep.get("fit", {}).get("chosen"), "alpha_x": _alpha_x(model),
             "gain": rep.get("gain", {}).get("measured")}
 
 
-def _alpha_x(report):
-    """The nearest-neighbour alpha(10 ke-, 0) along x of the chosen law, if the
-    report gives it."""
-    for row in report.get("law_table", []) or []:
-        if row.get("signal") == 1e4:
-            return row.get("x")
-    return None
+def _alpha_x(model_path):
+    """The written model's nearest-neighbour coupling along x at 10 ke- next to
+    an empty pixel (made: :data:`ALPHA`)."""
+    from ..model import CouplingModel
+
+    model = CouplingModel.load(model_path)
+    return float(model.geometry.weight(0, 1) * model.law.alpha(1e4, 0.0))
 
 
 def calibrate_full_section(rows, cpu, load):
@@ -188,15 +234,16 @@ def calibrate_full_section(rows, cpu, load):
                       "peak RSS": f"{r['calibrate_peak_gb']:.2f} GB",
                       "making the set": f"{r['make_s']:.0f} s, {r['make_peak_gb']:.2f} GB",
                       "gain measured": (f"{r['gain']:.4g} e-/DN" if r.get("gain") else "-"),
-                      "law": r.get("chosen") or "-"} for r in rows],
+                      "law": r.get("chosen") or "-",
+                      "alpha_x(10 ke-, 0)": f"{r['alpha_x']:.5f}"} for r in rows],
             "notes": [f"CPU: {cpu}; load average before the run: {load}.",
                       "`python -m ipc_taichi.bench.calfull SIZE ...` (ipc_taichi.bench.calfull): "
                       "uint16 DN ramps (GAIN 1.8 e-/DN, bias in every read), a constant "
                       f"alpha {ALPHA:g} made into every read, flats to ~40 ke-; `ipc-taichi "
                       "calibrate --darks ... --flats ... -o ... --report ...` in a fresh "
-                      "process, its peak RSS from os.wait4. Flat ramps above "
-                      "ipc_taichi.calibrate.stream.STREAM_BYTES (1 GiB as float64) are read "
-                      "by row strips; the dark is read whole."]}
+                      "process, its peak RSS from os.wait4. Flats whose float64 charge "
+                      "together exceeds ipc_taichi.calibrate.stream.STREAM_BYTES (1 GiB) are "
+                      "read by row strips; the dark is read whole."]}
 
 
 def _cpu():

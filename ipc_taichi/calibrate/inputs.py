@@ -119,7 +119,7 @@ def _as4d(array):
 
 
 def read_frames(path, hdu=None, gain=None, dq_bits=DEFAULT_DQ_BITS, refpix=None, bunit=None, *,
-                role=None):
+                role=None, sections=False):
     """Read a dark, ramp or flat product into :class:`ChargeFrames`.
 
     Parameters
@@ -139,6 +139,9 @@ def read_frames(path, hdu=None, gain=None, dq_bits=DEFAULT_DQ_BITS, refpix=None,
         Override the file's units (``DN``, ``electron``; rates are refused).
     role : {None, "dark", "flat"}
         What the file is given as (named in errors).
+    sections : bool
+        A 4-D FITS ramp is read by sections (:mod:`.stream`: ``data`` and
+        ``mask`` are :class:`.stream.LazyCharge`, never held whole).
 
     Returns
     -------
@@ -153,7 +156,7 @@ def read_frames(path, hdu=None, gain=None, dq_bits=DEFAULT_DQ_BITS, refpix=None,
         saturated = (None, "")
     else:
         frames, ndim, keys, saturated = _read_fits(path, hdu, gain, dq_bits, refpix, bunit,
-                                                   sections=role == "flat")
+                                                   sections=sections)
     frames.meta["role"] = role
     frames.meta.update(_layout(frames, ndim, keys))
     _check_usable(frames, saturated, role)
@@ -269,7 +272,7 @@ def _check_reftype(primary, label):
 
 
 def _read_fits(path, hdu, gain, dq_bits, refpix, bunit, sections=False):
-    """``sections``: a large 4-D ramp is read by sections (:mod:`.stream`)."""
+    """``sections``: a 4-D ramp is read by sections (:mod:`.stream`)."""
     hdul = open_fits(path, memmap=False)
     with hdul:
         index, label, raw = _science_hdu(path, hdul, parse_hdu(hdu))
@@ -288,7 +291,7 @@ def _read_fits(path, hdu, gain, dq_bits, refpix, bunit, sections=False):
         level = None if saturate is None else float(saturate) * float(np.max(scale))
         keys = {k: keyword(hdul, index, k) for k in ("NGROUPS", "NINTS", "READPATT")}
         keys["hdu"] = hdu_label(hdul, index)
-        if (sections and stream.worth_streaming(shape)
+        if (sections and len(shape) == 4
                 and stream.readable_by_sections(path, hdul, index)):
             source = stream.RampSource(path, hdul, index, scale,
                                        flag_hdus(hdul, index, shape, path),

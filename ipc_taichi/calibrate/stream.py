@@ -1,8 +1,8 @@
 """Flat ramps too large for memory, read by sections.
 
 A Roman-size flat set (8 ramps of 4096 x 4096 x 20 reads) is 21 GB as
-float64 electrons. A flat ramp whose float64 charge would exceed
-:data:`STREAM_BYTES` is therefore not read whole: :class:`LazyCharge`
+float64 electrons. Flat ramps whose float64 charge would exceed
+:data:`STREAM_BYTES` (all the flats together) are therefore not read whole: :class:`LazyCharge`
 memory-maps the file's science array unscaled (astropy's
 ``do_not_scale_image_data``; integers stored with BZERO, e.g. uint16, are
 scaled here per section) and gives, on indexing, the same float64 electrons
@@ -19,19 +19,33 @@ import numpy as np
 from ..products import conventions as cv
 
 __all__ = ["STREAM_BYTES", "STRIP_BYTES", "LazyCharge", "RampSource", "is_lazy",
-           "concatenate", "row_strips", "worth_streaming", "readable_by_sections",
+           "concatenate", "row_strips", "flats_by_sections", "readable_by_sections",
            "increment_variances"]
 
 STREAM_BYTES = 1 << 30
-"""A flat ramp whose float64 charge exceeds this many bytes is read by sections."""
+"""Flat ramps whose float64 charge, all files together, exceeds this many bytes
+are read by sections."""
 
 STRIP_BYTES = 1 << 27
 """Float64 bytes of one row strip (all integrations and reads of its rows)."""
 
 
-def worth_streaming(shape):
-    """Whether a science array of ``shape`` is read by sections."""
-    return len(shape) == 4 and 8 * int(np.prod(shape)) > STREAM_BYTES
+def flats_by_sections(paths, hdu=None):
+    """Whether the flats ``paths`` are read by sections: their science arrays
+    (by their headers; a file that cannot be read counts nothing here and is
+    refused by the reader) hold more than :data:`STREAM_BYTES` as float64."""
+    from ..fitsio import parse_hdu
+    from ..products.fitsfile import open_fits, science_indices, shape_of
+
+    total = 0
+    for path in paths:
+        try:
+            with open_fits(path) as hdul:
+                index = science_indices(path, hdul, parse_hdu(hdu), raw_ok=True)[0][0]
+                total += 8 * int(np.prod(shape_of(hdul[index].header)))
+        except Exception:  # not FITS (ASDF), unreadable: the reader says why
+            continue
+    return total > STREAM_BYTES
 
 
 def row_strips(ny, row_bytes, budget=None):

@@ -439,7 +439,8 @@ def calibrate(darks=(), flats=(), reference=None, output=None, *, report_path=No
     _check_figures_folder(figures)
     options = {"hdu": hdu, "gain": gain, "dq_bits": dq_bits, "refpix": refpix, "bunit": bunit}
     dark_frames = [read_frames(p, role="dark", **options) for p in darks]
-    flat_frames = [read_frames(p, role="flat", **options) for p in flats]
+    sections = stream.flats_by_sections(flats, hdu)
+    flat_frames = [read_frames(p, role="flat", sections=sections, **options) for p in flats]
     not_measured, notes = [], []
     hot = _HotPixels(dark_frames, threshold, not_measured)
     rn = read_noise if read_noise is not None else hot.read_noise
