@@ -14,9 +14,10 @@ holds a few frames, not a cube.
 time and peak resident memory (``ru_maxrss`` of that child, from
 ``os.wait4``) are recorded, as are the generator's. Run as
 ``python -m ipc_taichi.bench.calfull SIZE [SIZE ...]`` (its rows go to
-``bench/calibrate_full.json``, its section into ``bench/RESULTS.md``); the set
-(``(1 + nflats) x groups x SIZE^2 x 2`` bytes: 5.7 GB at 4096) is deleted
-after each size.
+``bench/calibrate_full.json``, its section into ``bench/RESULTS.md``;
+``--render ROWS.jsonl ...`` renders rows measured apart, e.g. by
+:func:`measure_on` on a set made once). The set (``(nflats x groups +
+dark_groups) x SIZE^2 x 2`` bytes: 5.7 GB at 4096) is deleted after each size.
 """
 
 import json
@@ -230,13 +231,17 @@ def calibrate_full_section(rows, cpu, load):
     return {"title": "Calibrate on a Roman-size set (fresh process, peak RSS)",
             "rows": [{"set": f"dark {r['dark']} + flats {r['flats']}",
                       "on disk": f"{r['set_gb']:.2f} GB",
+                      "load": (f"{r['load_before']:.0f}" if r.get("load_before") else "-"),
                       "calibrate": f"{r['calibrate_s']:.0f} s",
                       "peak RSS": f"{r['calibrate_peak_gb']:.2f} GB",
                       "making the set": f"{r['make_s']:.0f} s, {r['make_peak_gb']:.2f} GB",
                       "gain measured": (f"{r['gain']:.4g} e-/DN" if r.get("gain") else "-"),
                       "law": r.get("chosen") or "-",
-                      "alpha_x(10 ke-, 0)": f"{r['alpha_x']:.5f}"} for r in rows],
-            "notes": [f"CPU: {cpu}; load average before the run: {load}.",
+                      "alpha_x(10 ke-, 0)": (f"{r['alpha_x']:.5f}" if r.get("alpha_x")
+                                             else "-")} for r in rows],
+            "notes": [f"CPU: {cpu} (2 cores, shared with other sessions); `load`: the load "
+                      "average (1 min) when each calibrate started, so the times are upper "
+                      f"bounds ({load} when this section was written).",
                       "`python -m ipc_taichi.bench.calfull SIZE ...` (ipc_taichi.bench.calfull): "
                       "uint16 DN ramps (GAIN 1.8 e-/DN, bias in every read), a constant "
                       f"alpha {ALPHA:g} made into every read, flats to ~40 ke-; `ipc-taichi "
@@ -264,6 +269,11 @@ def main(argv):
         return 0
     load = " ".join(f"{x:.1f}" for x in os.getloadavg())
     rows = []
+    if argv[:1] == ["--render"]:  # rows measured apart (JSON lines files), to RESULTS.md
+        for path in argv[1:]:
+            with open(path) as f:
+                rows += [json.loads(line) for line in f if line.startswith("{")]
+        argv = []
     for size in map(int, argv):
         rows.append(measure_full(size))
         print(json.dumps(rows[-1]), flush=True)
