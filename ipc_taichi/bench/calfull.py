@@ -23,12 +23,18 @@ dark_groups) x SIZE^2 x 2`` bytes: 5.7 GB at 4096) is deleted after each size.
 import json
 import os
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 
 import numpy as np
+
+from ..coupling import couple
+from ..model import CouplingModel
+from .render import render_section
 
 __all__ = ["write_ramp", "dark_reads", "flat_reads", "make_set", "measure_full", "measure_on",
            "calibrate_full_section", "GAIN", "BIAS", "ALPHA", "FLAT_LEVEL"]
@@ -77,8 +83,6 @@ def write_ramp(path, reads, shape, gain=GAIN):
 
 def _read_out(charge, bias, rng, gain):
     """One read [DN]: the charge coupled, plus read noise, over the gain, plus bias."""
-    from ..coupling import couple
-
     noise = rng.standard_normal(charge.shape, dtype=np.float32) * np.float32(READ_NOISE)
     return (np.asarray(couple(charge, law=ALPHA)) + noise) / gain + bias
 
@@ -147,9 +151,6 @@ def _rss(pid):
 def _child(args, env=None):
     """Run ``args``; (seconds, peak RSS bytes of that child, return code, stderr
     tail). Stopped (SIGKILL, said in the tail) past :data:`RSS_LIMIT`."""
-    import signal
-    import threading
-
     start = time.perf_counter()
     proc = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env)
     stopped = []
@@ -220,8 +221,6 @@ def measure_on(folder):
 def _alpha_x(model_path):
     """The written model's nearest-neighbour coupling along x at 10 ke- next to
     an empty pixel (made: :data:`ALPHA`)."""
-    from ..model import CouplingModel
-
     model = CouplingModel.load(model_path)
     return float(model.geometry.weight(0, 1) * model.law.alpha(1e4, 0.0))
 
@@ -288,8 +287,6 @@ MARK = ("<!-- calibrate_full -->", "<!-- /calibrate_full -->")
 def _save(section, rows, directory="bench"):
     """The rows to ``calibrate_full.json``; the section into ``RESULTS.md``
     between :data:`MARK` (appended the first time); both written atomically."""
-    from .render import render_section
-
     path = os.path.join(directory, "RESULTS.md")
     with open(path) as f:
         text = f.read()

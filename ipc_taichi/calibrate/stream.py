@@ -16,7 +16,9 @@ cube is held in float64. Smaller inputs are read whole, as before.
 
 import numpy as np
 
+from ..fitsio import parse_hdu
 from ..products import conventions as cv
+from ..products.fitsfile import compression, is_compressed, open_fits, science_indices, shape_of
 
 __all__ = ["STREAM_BYTES", "STRIP_BYTES", "LazyCharge", "RampSource", "is_lazy",
            "concatenate", "row_strips", "flats_by_sections", "readable_by_sections",
@@ -34,9 +36,6 @@ def flats_by_sections(paths, hdu=None):
     """Whether the flats ``paths`` are read by sections: their science arrays
     (by their headers; a file that cannot be read counts nothing here and is
     refused by the reader) hold more than :data:`STREAM_BYTES` as float64."""
-    from ..fitsio import parse_hdu
-    from ..products.fitsfile import open_fits, science_indices, shape_of
-
     total = 0
     for path in paths:
         try:
@@ -265,8 +264,6 @@ def _stored(hdul, index):
 def readable_by_sections(path, hdul, index):
     """Whether HDU ``index`` is stored plainly (not compressed) and can be read
     by sections."""
-    from ..products.fitsfile import compression, is_compressed
-
     return compression(path) is None and not any(is_compressed(h) for h in hdul)
 
 
