@@ -511,7 +511,7 @@ def _check_usable(frames, saturated, role):
     shape = frames.mask.shape
     need = min(2, shape[1])
     but_saturation = False  # usable but for saturation
-    for rows in stream.row_strips(shape[-2], shape[0] * shape[1] * shape[-1]):
+    for rows in stream.row_strips(shape[-2], 8 * shape[0] * shape[1] * shape[-1]):  # float64
         mask = frames.mask[:, :, rows]
         part = np.zeros(mask.shape, dtype=bool) if sat is None else sat[:, :, rows]
         if ((~mask & ~part).sum(axis=1) >= need).any():
