@@ -14,6 +14,8 @@ The measuring code reads such a ramp by row strips (:func:`row_strips`);
 cube is held in float64. Smaller inputs are read whole, as before.
 """
 
+import itertools
+
 import numpy as np
 
 from ..fitsio import parse_hdu
@@ -114,7 +116,7 @@ class RampSource:
         self._outside = np.ones(self.shape[-2:], dtype=bool)
         self._outside[region] = False
         self._level, self._raw = level, raw
-        self._first = (None, None)
+        self._number = next(_NUMBERS)  # names it in the first-read slot (an id is reused)
 
     def _values(self, index, key):
         """Values of HDU ``index`` at ``key`` (its trailing axes), scaled as
@@ -154,12 +156,14 @@ class RampSource:
         return data, mask, sat
 
     def _first_read(self, i, rows, cols):
-        """The first read of integration ``i`` (charge, mask), kept for the next call."""
-        tag = (i, rows.start, rows.stop, rows.step, cols.start, cols.stop, cols.step)
-        if self._first[0] != tag:
+        """The first read of integration ``i`` (charge, mask), kept for the next
+        call (one for all sources: a frame each would add up over a set)."""
+        tag = (self._number, i, rows.start, rows.stop, rows.step, cols.start, cols.stop, cols.step)
+        if _FIRST[0] != tag:
+            _FIRST[:] = [None, None]  # the old one goes before the new one is read
             data, mask, sat = self._read((i, slice(0, 1), rows, cols))
-            self._first = (tag, (data, mask | sat))
-        return self._first[1]
+            _FIRST[:] = [tag, (data, mask | sat)]
+        return _FIRST[1]
 
     def section(self, i, groups, rows, cols, kind):
         """``kind`` ("data", "mask" or "saturated") of integration ``i``,
@@ -248,6 +252,11 @@ class LazyCharge:
             i -= n
         raise IndexError(i)
 
+
+_NUMBERS = itertools.count()
+
+_FIRST = [None, None]
+"""The last first read given (its tag, (charge, mask)): one frame, whatever the source."""
 
 _DTYPES = {8: ">u1", 16: ">i2", 32: ">i4", 64: ">i8", -32: ">f4", -64: ">f8"}
 
