@@ -247,7 +247,9 @@ def calibrate_full_section(rows, cpu, load):
                       "calibrate --darks ... --flats ... -o ... --report ...` in a fresh "
                       "process, its peak RSS from os.wait4. Flats whose float64 charge "
                       "together exceeds ipc_taichi.calibrate.stream.STREAM_BYTES (1 GiB) are "
-                      "read by row strips; the dark is read whole."]}
+                      "read by row strips; the dark is read whole."]
+            + [f"{r['size']}^2: making the set measured by {r['make_note']}." for r in rows
+               if r.get("make_note")]}
 
 
 def _cpu():
