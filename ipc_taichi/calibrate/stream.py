@@ -1,17 +1,18 @@
 """Flat ramps too large for memory, read by sections.
 
 A Roman-size flat set (8 ramps of 4096 x 4096 x 20 reads) is 21 GB as
-float64 electrons. Flat ramps whose float64 charge would exceed
-:data:`STREAM_BYTES` (all the flats together) are therefore not read whole: :class:`LazyCharge`
-memory-maps the file's science array unscaled (astropy's
-``do_not_scale_image_data``; integers stored with BZERO, e.g. uint16, are
-scaled here per section) and gives, on indexing, the same float64 electrons
-and mask as the whole-file reader (:func:`.inputs.read_frames`): the value
-times the gain, the first read subtracted from a raw integer ramp, NaN where
-masked (the DQ bits, SATURATE, non-finite values, the reference border).
-The measuring code reads such a ramp by row strips (:func:`row_strips`);
-:mod:`.rampsums` accumulates its block sums strip by strip, so no whole
-cube is held in float64. Smaller inputs are read whole, as before.
+float64 electrons. Flat ramps whose float64 charge, all the flats together,
+would exceed :data:`STREAM_BYTES` are therefore not read whole:
+:class:`LazyCharge` reads the stored values of the section asked for (a
+memory map of the file opened for that section only; BSCALE, BZERO and BLANK
+applied here, as astropy applies them, e.g. to uint16 stored as int16 +
+32768) and gives the same float64 electrons and mask as the whole-file reader
+(:func:`.inputs.read_frames`): the value times the gain, the first read
+subtracted from a raw integer ramp, NaN where masked (the DQ bits, SATURATE,
+non-finite values, the reference border). The measuring code reads such a
+ramp by row strips (:func:`row_strips`); :mod:`.rampsums` accumulates its
+block sums strip by strip, so no whole cube is held in float64. Smaller sets
+are read whole, as before. Compressed files are read whole.
 """
 
 import itertools
