@@ -249,7 +249,7 @@ def calibrate_full_section(rows, cpu, load):
                       "together exceeds ipc_taichi.calibrate.stream.STREAM_BYTES (1 GiB) are "
                       "read by row strips; the dark is read whole."]
             + [f"{r['size']}^2: making the set measured by {r['make_note']}." for r in rows
-               if r.get("make_note")]}
+               if r.get("make_note")] + [r["note"] for r in rows if r.get("note")]}
 
 
 def _cpu():
