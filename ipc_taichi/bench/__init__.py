@@ -28,7 +28,8 @@ step), :mod:`~ipc_taichi.bench.render` (the report, a pure function of the
 results), :mod:`~ipc_taichi.bench.launch` (subprocesses, the whole run),
 :mod:`~ipc_taichi.bench.startup` (``--help`` and a small decouple in fresh processes),
 :mod:`~ipc_taichi.bench.cliramp` (a Roman-like ramp file through the CLI beside its
-read and write).
+read and write), :mod:`~ipc_taichi.bench.calfull` (``calibrate`` on a Roman-size set in a
+fresh process, its peak memory; run on its own: ``python -m ipc_taichi.bench.calfull``).
 """
 
 from .cpu import KINDS, SIZES, measure_floor, measure_row

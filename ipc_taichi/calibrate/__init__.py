@@ -2,6 +2,7 @@
 reference files, and write the coupling-model file that ``decouple`` uses.
 
 - :mod:`.inputs`: products read as charge [e-] with their masks;
+- :mod:`.stream`: flat ramps too large for memory, read by sections and row strips;
 - :mod:`.hotpixels`: isolated hot pixels, alpha(S, 0) per direction;
 - :mod:`.flats`: flats of frames at one level, alpha(S, S) per axis (exact kernel relation);
 - :mod:`.ramps`: flat ramps: gain, classical non-linearity, brighter-fatter and

@@ -69,6 +69,7 @@ from ..products.fitsfile import (
     shape_of,
 )
 from ..products.options import ProductOptions
+from . import stream
 
 __all__ = ["ChargeFrames", "read_frames", "DEFAULT_DQ_BITS", "ROLES", "plan_charge",
            "cube_rises", "RISE_SIGMAS"]
@@ -118,7 +119,7 @@ def _as4d(array):
 
 
 def read_frames(path, hdu=None, gain=None, dq_bits=DEFAULT_DQ_BITS, refpix=None, bunit=None, *,
-                role=None):
+                role=None, sections=False):
     """Read a dark, ramp or flat product into :class:`ChargeFrames`.
 
     Parameters
@@ -138,6 +139,9 @@ def read_frames(path, hdu=None, gain=None, dq_bits=DEFAULT_DQ_BITS, refpix=None,
         Override the file's units (``DN``, ``electron``; rates are refused).
     role : {None, "dark", "flat"}
         What the file is given as (named in errors).
+    sections : bool
+        A 4-D FITS ramp is read by sections (:mod:`.stream`: ``data`` and
+        ``mask`` are :class:`.stream.LazyCharge`, never held whole).
 
     Returns
     -------
@@ -151,7 +155,8 @@ def read_frames(path, hdu=None, gain=None, dq_bits=DEFAULT_DQ_BITS, refpix=None,
         frames, ndim, keys = _read_asdf(path, gain, dq_bits, refpix, bunit)
         saturated = (None, "")
     else:
-        frames, ndim, keys, saturated = _read_fits(path, hdu, gain, dq_bits, refpix, bunit)
+        frames, ndim, keys, saturated = _read_fits(path, hdu, gain, dq_bits, refpix, bunit,
+                                                   sections=sections)
     frames.meta["role"] = role
     frames.meta.update(_stack(frames, ndim, keys))
     _check_usable(frames, saturated, role)
@@ -265,7 +270,8 @@ def _check_reftype(primary, label):
                             f", not a dark, ramp or flat exposure of collected charge{hint}")
 
 
-def _read_fits(path, hdu, gain, dq_bits, refpix, bunit):
+def _read_fits(path, hdu, gain, dq_bits, refpix, bunit, sections=False):
+    """``sections``: a 4-D ramp is read by sections (:mod:`.stream`)."""
     hdul = open_fits(path, memmap=False)
     with hdul:
         index, label, raw = _science_hdu(path, hdul, parse_hdu(hdu))
@@ -279,15 +285,26 @@ def _read_fits(path, hdu, gain, dq_bits, refpix, bunit):
             raise IPCInputError(f"{label}: {region.arrangement.describe()}: calibrate reads "
                                 "contiguous frames; give the products after the refpix step "
                                 "(its reference samples removed)")
-        data = np.asarray(read_array(path, hdul, index), dtype=np.float64) * scale
         bits, lacking = plan.dq_bits_of(dq_bits, mission)
+        saturate = keyword(hdul, index, "SATURATE")
+        level = None if saturate is None else float(saturate) * float(np.max(scale))
+        keys = {k: keyword(hdul, index, k) for k in ("NGROUPS", "NINTS", "READPATT")}
+        keys["hdu"] = hdu_label(hdul, index)
+        if (sections and len(shape) == 4
+                and stream.readable_by_sections(path, hdul, index)):
+            source = stream.RampSource(path, hdul, index, scale,
+                                       flag_hdus(hdul, index, shape, path),
+                                       bits, bits & mission.flag("SATURATED"),
+                                       region.inside_mask(), region.slices, level, raw)
+            data = stream.LazyCharge([(source, shape[0])])
+            info.update(saturation=None if raw else level, first_read_subtracted=raw,
+                        dq_note=_dq_note(lacking, path))
+            return (ChargeFrames(path, label, data, data.like("mask"), arrays.units_text, info),
+                    4, keys, (data.like("saturated"), "DQ SATURATED or >= SATURATE"))
+        data = np.asarray(read_array(path, hdul, index), dtype=np.float64) * scale
         flags = [read_array(path, hdul, k) for k in flag_hdus(hdul, index, shape, path)]
         mask = _untrusted(flags, bits, shape, region, scale)
         saturated = _untrusted(flags, bits & mission.flag("SATURATED"), shape)
-        saturate = keyword(hdul, index, "SATURATE")
-        keys = {k: keyword(hdul, index, k) for k in ("NGROUPS", "NINTS", "READPATT")}
-        keys["hdu"] = hdu_label(hdul, index)
-    level = None if saturate is None else float(saturate) * float(np.max(scale))
     said = ["DQ SATURATED"] if saturated.any() else []
     if level is not None:
         with np.errstate(invalid="ignore"):
@@ -416,7 +433,7 @@ def cube_rises(cube):
         (median pixel noise of one step, e-), ``falls`` (steps that fall by
         more than :data:`RISE_SIGMAS` errors of their median).
     """
-    cube = _sample(np.asarray(cube, dtype=np.float64))
+    cube = np.asarray(_sample(cube), dtype=np.float64)
     steps, noises, falls = [], [], 0
     for k in range(cube.shape[0] - 1):
         step = cube[k + 1] - cube[k]
@@ -491,13 +508,17 @@ def _check_usable(frames, saturated, role):
     them), saying when saturation is why. ``saturated``: the pixels
     saturated (DQ or SATURATE) or None, and the sentence saying by what."""
     sat, by_what = saturated
-    mask = frames.mask
-    sat = np.zeros(mask.shape, dtype=bool) if sat is None else sat
-    need = min(2, mask.shape[1])
-    if ((~mask & ~sat).sum(axis=1) >= need).any():
-        return
+    shape = frames.mask.shape
+    need = min(2, shape[1])
+    but_saturation = False  # usable but for saturation
+    for rows in stream.row_strips(shape[-2], 8 * shape[0] * shape[1] * shape[-1]):  # float64
+        mask = frames.mask[:, :, rows]
+        part = np.zeros(mask.shape, dtype=bool) if sat is None else sat[:, :, rows]
+        if ((~mask & ~part).sum(axis=1) >= need).any():
+            return
+        but_saturation |= bool(((~(mask & ~part)).sum(axis=1) >= need).any())
     what = f"{role} {frames.meta['stack']}" if role else frames.meta["stack"]
-    if ((~(mask & ~sat)).sum(axis=1) >= need).any():  # usable but for saturation
+    if but_saturation:
         raise IPCInputError(f"{frames.label}: every read of this {what} is saturated "
                             f"({by_what}): no pixel has {need} unsaturated read(s) to measure; "
                             "lower the illumination or shorten the ramp")

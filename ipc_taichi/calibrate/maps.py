@@ -49,7 +49,7 @@ from scipy import ndimage
 from .. import decouple
 from ..bondmap import BondMap
 from ..model import CouplingModel
-from . import hotpixels
+from . import hotpixels, stream
 from .transfer import mosaic
 
 __all__ = ["SUPERPIXELS", "MAP_PRECISION", "MAP_MARGIN", "MIN_GRID", "NoiseSums",
@@ -139,7 +139,13 @@ def _differences(f):
 
     def images():
         for i in range(d.shape[0]):
-            if ramp:
+            if ramp and stream.is_lazy(d):  # NaN where masked; each read once
+                reads = (d[i, g] for g in range(d.shape[1]))
+                prev = next(reads)
+                for read in reads:
+                    yield read - prev, i
+                    prev = read
+            elif ramp:
                 for g in range(1, d.shape[1]):
                     yield np.where(m[i, g] | m[i, g - 1], np.nan, d[i, g] - d[i, g - 1]), i
             else:

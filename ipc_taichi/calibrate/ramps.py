@@ -58,6 +58,7 @@ per-level points).
 import numpy as np
 
 from ..errors import IPCInputError
+from . import stream
 from .flats import TERMS
 from .rampfit import (
     bf_report,
@@ -161,7 +162,7 @@ class FlatRamps:
         -------
         FlatRamps
         """
-        data = np.asarray(ramps)
+        data = ramps if stream.is_lazy(ramps) else np.asarray(ramps)
         if data.ndim == 3:
             data = data[None]
         if data.ndim != 4:

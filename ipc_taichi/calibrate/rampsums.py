@@ -14,6 +14,7 @@ import numpy as np
 
 from ..errors import IPCInputError
 from .rampmodel import LAG_CLASSES, LAGS
+from .stream import is_lazy, row_strips
 
 __all__ = ["block_sums", "symmetrise"]
 
@@ -52,8 +53,9 @@ def block_sums(data, mask, border, blocks, saturation):
     cols = np.linspace(0, nx, blocks[1] + 1).round().astype(int)
     edges = [(rows[i], rows[i + 1], cols[j], cols[j + 1])
              for i in range(blocks[0]) for j in range(blocks[1])]
-    inc_sums = np.diff([_block_read_sums(data, good, e, used, finite) for e in edges],
-                       axis=2)
+    row = nints * used * (nx + 2 * _MARGIN) * 8  # float64 bytes of a row of a strip
+    inc_sums = np.diff([sum(_block_read_sums(data, good, s, used, finite)
+                            for s in _strips(e, row)) for e in edges], axis=2)
     n_pixels = np.array([good[y0:y1, x0:x1].sum() for y0, y1, x0, x1 in edges])
     mean_inc = inc_sums.sum(axis=0) / n_pixels.sum()  # (nints, increments)
     offset = mean_inc - mean_inc.mean(axis=0) if nints > 1 else mean_inc
@@ -61,9 +63,23 @@ def block_sums(data, mask, border, blocks, saturation):
         offset = offset * np.sqrt(nints / (nints - 1.0))
     else:
         notes.append("one integration: the fixed pattern cannot be subtracted")
-    sums, counts = zip(*(_block_products(data, good, e, used, offset) for e in edges),
-                       strict=True)
+    sums, counts = zip(*(_added(_block_products(data, good, s, used, offset)
+                                for s in _strips(e, row)) for e in edges), strict=True)
     return np.array(sums), np.array(counts), inc_sums, n_pixels, notes
+
+
+def _strips(edge, row_bytes):
+    """A block ``(y0, y1, x0, x1)`` as row strips of at most
+    :data:`.stream.STRIP_BYTES` (the block itself when it fits): its sums are
+    the strips' sums (each strip read with its own margin)."""
+    y0, y1, x0, x1 = edge
+    return [(y0 + r.start, y0 + r.stop, x0, x1) for r in row_strips(y1 - y0, row_bytes)]
+
+
+def _added(parts):
+    """The sums and counts of a block's strips, added."""
+    sums, counts = zip(*parts, strict=True)
+    return sum(sums[1:], sums[0]), sum(counts[1:], counts[0])
 
 
 def _usable(data, mask, border, saturation):
@@ -72,28 +88,31 @@ def _usable(data, mask, border, saturation):
     nints, ngroups, ny, nx = data.shape
     notes = []
     used = ngroups
+    strips = row_strips(ny, nints * ngroups * nx * 8)
     if saturation is not None:
-        frac = np.array([(data[:, g] >= float(saturation)).mean() for g in range(ngroups)])
-        over = np.nonzero(frac > 0.01)[0]
+        over = np.zeros(ngroups)
+        for rows in strips:
+            over += [np.count_nonzero(data[:, g, rows] >= float(saturation))
+                     for g in range(ngroups)]
+        over = np.nonzero(over / (nints * ny * nx) > 0.01)[0]
         if over.size:
             used = int(over[0])
             notes.append(f"reads {used}..{ngroups - 1} not used: more than 1 % of the pixels "
                          f"at or above the saturation level {float(saturation):.6g} e-")
     bad = np.zeros((ny, nx), bool)
-    for i in range(nints):
-        part = data[i, :used]
-        bad |= ~np.isfinite(part).all(axis=0)
+    for rows in strips:
+        bad[rows] |= ~np.isfinite(data[:, :used, rows]).all(axis=(0, 1))
     finite = not bad.any()
-    for i in range(nints):
-        part = data[i, :used]
-        if saturation is not None:
-            bad |= (part >= float(saturation)).any(axis=0)
+    if saturation is not None:
+        for rows in strips:
+            bad[rows] |= (data[:, :used, rows] >= float(saturation)).any(axis=(0, 1))
     if mask is not None:
-        m = np.asarray(mask, bool)
+        m = mask if is_lazy(mask) else np.asarray(mask, bool)
         if m.shape == (ny, nx):
             bad |= m
         elif m.shape == data.shape:
-            bad |= m[:, :used].any(axis=(0, 1))
+            for rows in strips:
+                bad[rows] |= m[:, :used, rows].any(axis=(0, 1))
         else:
             raise IPCInputError(f"mask shape {m.shape} fits neither the ramps {data.shape} "
                                 "nor a frame")

@@ -52,6 +52,7 @@ from . import (
     records,
     reffiles,
     report,
+    stream,
     transfer,
     verdicts,
 )
@@ -150,8 +151,8 @@ class _Flats:
         ramp_files = [f for f in flat_files if f.meta.get("stack") == "ramp"]
         self.frame_files = [f for f in flat_files if f.meta.get("stack") != "ramp"]
         for group in _by_illumination(ramp_files):
-            data = np.concatenate([f.data for f in group])
-            mask = np.concatenate([f.mask for f in group])
+            data = stream.concatenate([f.data for f in group])
+            mask = stream.concatenate([f.mask for f in group])
             sat = [f.meta.get("saturation") for f in group if f.meta.get("saturation")]
             label = ", ".join(f.label for f in group)
             flat_less = _no_shot_noise(data, mask, read_noise)
@@ -250,11 +251,9 @@ def _no_shot_noise(data, mask, read_noise):
     """Why flat ramps (e-) hold no shot noise to measure (the increments'
     variance across pixels within twice the read noise squared), else None:
     a noiseless or saturated flat, refused before the covariance fit."""
-    incs = np.diff(np.where(np.broadcast_to(mask, data.shape), np.nan, data), axis=-3)
     with np.errstate(invalid="ignore"), warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # an all-masked group
-        var = np.nanvar(incs.reshape(incs.shape[:-2] + (-1,)), axis=-1)
-        mean = np.nanmean(np.abs(incs))
+        var, mean = stream.increment_variances(data, mask)
     floor = 2.0 * float(read_noise or 0.0) ** 2 + 1e-9 * float(mean or 0.0) ** 2
     largest = float(np.nanmax(var)) if np.isfinite(var).any() else 0.0
     if largest <= floor:
@@ -441,7 +440,8 @@ def calibrate(darks=(), flats=(), reference=None, output=None, *, report_path=No
     _check_figures_folder(figures)
     options = {"hdu": hdu, "gain": gain, "dq_bits": dq_bits, "refpix": refpix, "bunit": bunit}
     dark_frames = [read_frames(p, role="dark", **options) for p in darks]
-    flat_frames = [read_frames(p, role="flat", **options) for p in flats]
+    sections = stream.flats_by_sections(flats, hdu)
+    flat_frames = [read_frames(p, role="flat", sections=sections, **options) for p in flats]
     not_measured, notes = [], []
     hot = _HotPixels(dark_frames, threshold, not_measured)
     rn = read_noise if read_noise is not None else hot.read_noise
