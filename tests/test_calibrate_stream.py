@@ -152,7 +152,7 @@ def test_generator_writes_a_detector_ramp(tmp_path, cpu):
     assert last.mean() == pytest.approx(calfull.FLAT_LEVEL, rel=0.01)
     # Poisson (normal approximation) and read noise: the increments' variance ~ the rate
     frames = inputs.read_frames(path, role="flat")
-    assert frames.meta["first_read_subtracted"] and frames.meta["layout"] == "ramp"
+    assert frames.meta["first_read_subtracted"] and frames.meta["stack"] == "ramp"
     inc = np.diff(frames.data[0], axis=0)[:, 2:-2, 2:-2]
     rate = calfull.FLAT_LEVEL / 5
     assert inc.mean() == pytest.approx(rate, rel=0.01)
