@@ -162,18 +162,20 @@ def vector_unit_set(name):
     workspaces are rebuilt on entry and exit; the variable is put back."""
     old = os.environ.get(LANES_ENV)
     try:
-        if name is None:
-            os.environ.pop(LANES_ENV, None)
-        else:
-            os.environ[LANES_ENV] = name
+        _put_lanes_env(name)
         clear_kernels()
         yield
     finally:
-        if old is None:
-            os.environ.pop(LANES_ENV, None)
-        else:
-            os.environ[LANES_ENV] = old
+        _put_lanes_env(old)
         clear_kernels()
+
+
+def _put_lanes_env(value):
+    """``$IPC_TAICHI_LANES`` set to ``value`` (``None``: unset)."""
+    if value is None:
+        os.environ.pop(LANES_ENV, None)
+    else:
+        os.environ[LANES_ENV] = value
 
 
 @contextlib.contextmanager
