@@ -387,3 +387,20 @@ def test_tiled_with_nan_block_equals_whole(cli, tmp_path, rng):
     assert np.array_equal(np.isnan(tiled), np.isnan(measured))
     assert np.nanmax(np.abs(tiled - whole)) <= 1e-12 * np.nanmax(whole)
     assert np.nanmax(np.abs(whole - measured)) > 100  # it was decoupled
+
+
+def test_tiled_reads_scaled_float_data_as_astropy_does(cli, tmp_path, rng):
+    """Float data with BSCALE/BZERO: the tiled path's memory-mapped windows are
+    scaled as astropy scales them (they were read unscaled: 15,491 e- off), so
+    --tile gives the whole-frame result."""
+    measured = couple_reference(rng.uniform(0, 60000, (40, 36)))
+    src = tmp_path / "in.fits"
+    fits.writeto(src, ((measured - 10.0) / 2.0).astype(np.float32))
+    with fits.open(src, mode="update") as hdul:
+        hdul[0].header["BSCALE"], hdul[0].header["BZERO"] = 2.0, 10.0
+    for name, extra in (("whole.fits", ()), ("tiled.fits", ("--tile", 16))):
+        r = cli("decouple", "--law", "donlon2018", src, tmp_path / name, *extra)
+        assert r.returncode == 0, r.stderr
+    whole, tiled = fits.getdata(tmp_path / "whole.fits"), fits.getdata(tmp_path / "tiled.fits")
+    assert np.abs(tiled - whole).max() <= 1e-6 * np.abs(whole).max()
+    assert np.abs(whole - measured).max() > 100  # it was decoupled

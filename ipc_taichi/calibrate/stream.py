@@ -21,7 +21,14 @@ import numpy as np
 
 from ..fitsio import parse_hdu
 from ..products import conventions as cv
-from ..products.fitsfile import compression, is_compressed, open_fits, science_indices, shape_of
+from ..products.fitsfile import (
+    RawImage,
+    compression,
+    is_compressed,
+    open_fits,
+    science_indices,
+    shape_of,
+)
 
 __all__ = ["STREAM_BYTES", "STRIP_BYTES", "LazyCharge", "RampSource", "is_lazy",
            "concatenate", "row_strips", "flats_by_sections", "readable_by_sections",
@@ -109,9 +116,9 @@ class RampSource:
     def __init__(self, path, hdul, index, scale, flags, bits, saturated_bits, inside, region,
                  level, raw):
         self.path = path
-        self._stored = {k: _stored(hdul, k) for k in [index] + list(flags)}
+        self._images = {k: RawImage(path, hdul, k) for k in [index] + list(flags)}
         self._index, self._flags = index, list(flags)
-        self.shape = self._stored[index][2]
+        self.shape = self._images[index].shape
         self._scale = scale
         self._bits, self._sat_bits, self._inside = bits, saturated_bits, inside
         self._outside = np.ones(self.shape[-2:], dtype=bool)
@@ -121,22 +128,11 @@ class RampSource:
 
     def _values(self, index, key):
         """Values of HDU ``index`` at ``key`` (its trailing axes), scaled as
-        astropy scales them (BSCALE, BZERO); bit flags as integers."""
-        offset, dtype, shape, bscale, bzero, blank = self._stored[index]
-        stored = np.memmap(self.path, dtype=dtype, mode="r", offset=offset, shape=shape)
-        part = stored[key[len(key) - len(shape):]]
-        if index != self._index:  # flags stay integers
-            out = np.array(part, dtype=np.int64) * int(bscale) + int(bzero)
-        else:
-            out = np.array(part, dtype=np.float64)
-            if bscale != 1:
-                out *= bscale
-            if bzero != 0:
-                out += bzero
-            if blank is not None and dtype.kind in "iu":
-                out[part == blank] = np.nan
-        del part, stored  # the map closes with its last view
-        return out
+        astropy scales them (:class:`~ipc_taichi.products.fitsfile.RawImage`);
+        bit flags as integers."""
+        image = self._images[index]
+        part = image[key[len(key) - len(image.shape):]]
+        return np.asarray(part, dtype=np.int64 if index != self._index else np.float64)
 
     def _read(self, key):
         """Charge [e-] as stored (before the first read is subtracted), the mask
@@ -258,18 +254,6 @@ _NUMBERS = itertools.count()
 
 _FIRST = [None, None]
 """The last first read given (its tag, (charge, mask)): one frame, whatever the source."""
-
-_DTYPES = {8: ">u1", 16: ">i2", 32: ">i4", 64: ">i8", -32: ">f4", -64: ">f8"}
-
-
-def _stored(hdul, index):
-    """Where HDU ``index``'s data lie: (byte offset, stored dtype, shape,
-    BSCALE, BZERO, BLANK)."""
-    h = hdul[index]
-    shape = tuple(int(h.header[f"NAXIS{n}"]) for n in range(h.header["NAXIS"], 0, -1))
-    return (hdul.fileinfo(index)["datLoc"], np.dtype(_DTYPES[h.header["BITPIX"]]), shape,
-            h.header.get("BSCALE", 1), h.header.get("BZERO", 0), h.header.get("BLANK"))
-
 
 def readable_by_sections(path, hdul, index):
     """Whether HDU ``index`` is stored plainly (not compressed) and can be read

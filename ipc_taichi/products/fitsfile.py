@@ -138,8 +138,11 @@ def science_indices(path, hdul, hdu, raw_ok=False):
 
 class RawImage:
     """Windows of an image HDU read through a memory map of the file, scaled
-    by BZERO/BSCALE (astropy refuses memory-mapped sections of scaled data).
-    Refuses gzip files and tile-compressed HDUs (their bytes are not pixels)."""
+    by BZERO/BSCALE, BLANK as NaN, as astropy scales them (astropy refuses
+    memory-mapped sections of scaled data). Each window maps the file anew and
+    lets the map go with its last view, so that pages read stay out of the
+    process's memory once used. Refuses gzip files and tile-compressed HDUs
+    (their bytes are not pixels)."""
 
     def __init__(self, path, hdul, index):
         label = f"{path}[{hdu_label(hdul, index)}]"
@@ -147,9 +150,11 @@ class RawImage:
             raise IPCInputError(f"{label}: tile-compressed; --tile reads pixels through memory "
                                 "maps: run without --tile, or decompress it first (funpack)")
         header = hdul[index].header
-        info = hdul.fileinfo(index)
         bitpix = header["BITPIX"]
-        dtype = {8: "u1", 16: ">i2", 32: ">i4", 64: ">i8", -32: ">f4", -64: ">f8"}[bitpix]
+        self.path = path
+        self.dtype = np.dtype({8: "u1", 16: ">i2", 32: ">i4", 64: ">i8", -32: ">f4",
+                               -64: ">f8"}[bitpix])
+        self.offset = hdul.fileinfo(index)["datLoc"]
         self.shape = shape_of(header)
         self.integer = bitpix > 0
         self.zero = header.get("BZERO", 0)
@@ -158,19 +163,19 @@ class RawImage:
         if compression(path) is not None:
             raise IPCInputError(f"{path}: --tile needs an uncompressed file "
                                 f"({compression(path)}: decompress it first)")
-        self.raw = np.memmap(path, dtype=dtype, mode="r", offset=info["datLoc"],
-                             shape=self.shape)
 
     def __getitem__(self, key):
-        raw = np.asarray(self.raw[key])
-        if self.integer:
-            if self.scale == 1 and float(self.zero).is_integer() and self.blank is None:
-                return raw.astype(np.int64) + int(self.zero)
-            out = self.zero + self.scale * raw.astype(np.float64)
-            if self.blank is not None:
-                out[raw == self.blank] = np.nan
-            return out
-        return raw.astype(np.float64)
+        raw = np.memmap(self.path, dtype=self.dtype, mode="r", offset=self.offset,
+                        shape=self.shape)[key]
+        if self.integer and self.scale == 1 and float(self.zero).is_integer() \
+                and self.blank is None:
+            return raw.astype(np.int64) + int(self.zero)
+        out = raw.astype(np.float64)
+        if self.scale != 1 or self.zero != 0:
+            out = self.zero + self.scale * out
+        if self.blank is not None:
+            out[raw == self.blank] = np.nan
+        return out
 
 
 def read_array(path, hdul, index):
