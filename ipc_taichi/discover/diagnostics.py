@@ -33,7 +33,8 @@ import math
 import numpy as np
 from scipy import ndimage
 
-__all__ = ["BORDER", "SIGNAL_BINS", "PROBE_TYPES", "valid_mask", "fill_scene", "residual", "gap",
+__all__ = ["BORDER", "SIGNAL_BINS", "PROBE_TYPES", "valid_mask", "near_holes", "fill_scene",
+           "residual", "gap",
            "find_probes", "stacked_windows", "residual_vs_signal", "probe_masks",
            "residuals_by_probe", "dipoles", "after_images", "pair_correlation", "UNEXPLAINED_Z"]
 
@@ -45,15 +46,18 @@ UNEXPLAINED_Z = 5.0  # a pattern stands out (is described, refuses a name) at 5 
 
 def valid_mask(scene, measured, border=BORDER):
     """Pixels that enter the statistics (see module docstring)."""
-    bad_scene = ~np.isfinite(scene)
-    near_bad = ndimage.binary_dilation(bad_scene, structure=np.ones((5, 5), bool)) \
-        if bad_scene.any() else bad_scene
-    valid = np.isfinite(measured) & ~near_bad
+    valid = np.isfinite(measured) & ~near_holes(~np.isfinite(scene))
     valid[:border, :] = False
     valid[-border:, :] = False
     valid[:, :border] = False
     valid[:, -border:] = False
     return valid
+
+
+def near_holes(bad):
+    """The pixels within 2 of a ``bad`` one (a SCENE pixel that is not finite):
+    their expected signal depends on the unknown one through the coupling."""
+    return ndimage.binary_dilation(bad, structure=np.ones((5, 5), bool)) if bad.any() else bad
 
 
 def fill_scene(scene):

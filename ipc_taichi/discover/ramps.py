@@ -58,12 +58,11 @@ import os
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.ndimage import binary_dilation
 
 from ..detector import read_noise
 from ..errors import IPCInputError
 from ..fitsio import atomic_output
-from .diagnostics import fill_scene
+from .diagnostics import fill_scene, near_holes
 from .labdata import read_header
 from .model import DetectorModel
 from .ramp_cross import CROSS_LAGS, bf_kernel_of, collect_reads, cross_products, cross_read_excess
@@ -123,7 +122,7 @@ def with_scene_holes(rate, oversample):
     bad = ~np.isfinite(block_sum(rate, oversample))
     if not bad.any():
         return rate, None
-    return fill_scene(rate), binary_dilation(bad, structure=np.ones((5, 5), bool))
+    return fill_scene(rate), near_holes(bad)
 
 
 @dataclass
