@@ -305,15 +305,13 @@ def _frame_in(frame, units, base, record, where, offset, operation, flagged, int
                   gain=units.inside if units.per_pixel else None)
     if base is None and measured.size and \
             PHYSICAL_RANGE[0] <= measured.min() and measured.max() <= PHYSICAL_RANGE[1]:
-        if m is not None and m.all():
-            raise FrameLost(f"{where}: no finite, unmasked pixel to {operation} "
-                            "(all NaN, flagged or unphysical)")
-        return measured, m
-    bad = record.add(measured if base is None else measured + base, m, where, offset)
-    if bad is not None:
-        m = bad if m is None else (m | bad)
-    good = np.isfinite(measured) if m is None else (np.isfinite(measured) & ~m)
-    if not good.any():
+        good = True if m is None else ~m  # every pixel finite and physical
+    else:
+        bad = record.add(measured if base is None else measured + base, m, where, offset)
+        if bad is not None:
+            m = bad if m is None else (m | bad)
+        good = np.isfinite(measured) if m is None else (np.isfinite(measured) & ~m)
+    if not np.any(good):
         raise FrameLost(f"{where}: no finite, unmasked pixel to {operation} "
                         "(all NaN, flagged or unphysical)")
     return measured, m
