@@ -47,6 +47,7 @@ from ..datasets import star_field
 from ..fitsio import atomic_output
 from ..products.fitsfile import open_fits, read_array, science_header, write_skeleton
 from ..products.options import product_precision
+from ..products.pages import OutputPages
 from .startup import run_fresh
 
 __all__ = ["measure_cliramp", "write_ramp_fits", "ramp_cube", "precision_cost",
@@ -55,7 +56,7 @@ __all__ = ["measure_cliramp", "write_ramp_fits", "ramp_cube", "precision_cost",
 
 IO_IMPORTS = ("import numpy as np\nfrom ipc_taichi.fitsio import atomic_output\n"
               "from ipc_taichi.products.fitsfile import open_fits, read_array, science_header, "
-              "write_skeleton\n")
+              "write_skeleton\nfrom ipc_taichi.products.pages import OutputPages\n")
 """The imports of :func:`copy_through_cli_io`, for the fresh process of (a)."""
 
 CLIRAMP_SIZE = 4096
@@ -153,8 +154,10 @@ def copy_through_cli_io(input_path, output_path, index=1):
     (:func:`ipc_taichi.products.fits.process_fits`), without the correction:
     the checked memory-mapped open, the output skeleton (every other HDU
     copied byte for byte), the science array read (as float64, as the
-    correction reads it) and written through a memory map of the temporary
-    output, renamed into place. Run by (a) from its source
+    correction reads it) and written frame by frame through the output's
+    :class:`~ipc_taichi.products.pages.OutputPages` as the command line
+    writes it (pages mapped ahead, each frame's writeback started once
+    written, synchronised before the rename), renamed into place. Run by (a) from its source
     (:data:`IO_IMPORTS` first), so that its process loads what the command
     line's I/O loads, not the bench package (0.8 s more here)."""
     with open_fits(input_path, memmap=True) as hdul:
@@ -163,13 +166,17 @@ def copy_through_cli_io(input_path, output_path, index=1):
         headers = {0: hdul[0].header.copy(), index: science_header(hdul[index].header, dtype)}
         with atomic_output(output_path, True) as tmp:
             places = write_skeleton(tmp, input_path, hdul, headers, {index: dtype})
-            out = np.memmap(tmp, dtype=dtype.newbyteorder(">"), mode="r+",
-                            offset=places[index][2], shape=data.shape)
+            out = OutputPages(tmp, dtype, places[index][2], data.shape)
+            done = False
             try:
-                out[...] = np.asarray(data, dtype=np.float64)
-                out.flush()
+                out.prefetch(data)
+                frames = out.array.reshape((-1,) + data.shape[-2:])
+                for k, frame in enumerate(np.asarray(data).reshape(frames.shape)):
+                    frames[k] = np.asarray(frame, dtype=np.float64)
+                    out.written(frames[k])
+                done = True
             finally:
-                del out
+                out.close(sync=done)
 
 
 def cpu_description():

@@ -162,7 +162,7 @@ class named:
 
 
 def correct_frames(data, plan, settings=RunSettings(), *, mask=None, out=None, noise=None,
-                   record=None):
+                   record=None, written=None):
     """Couple or decouple every 2-D frame of ``data`` by the product rules.
 
     The pure correction function under every product reader/writer.
@@ -193,6 +193,10 @@ def correct_frames(data, plan, settings=RunSettings(), *, mask=None, out=None, n
         Where the unflagged unphysical pixels are counted (default: a new
         one with ``settings.unphysical``); said in one warning line for the
         whole array.
+    written : callable, optional
+        Called with each frame of ``out`` (a view, every pixel of it final)
+        as soon as it is written, e.g. to start its writeback
+        (:meth:`~ipc_taichi.products.pages.OutputPages.written`).
 
     Returns
     -------
@@ -243,6 +247,8 @@ def correct_frames(data, plan, settings=RunSettings(), *, mask=None, out=None, n
         except FrameLost as exc:  # one frame of a stack or read of a ramp: left as it came
             infos.append(lost.keep(exc, operation))
             flat_out[k][region] = frames[k][region]
+            if written is not None:
+                written(flat_out[k])
             continue
         target = flat_out[k][region]
         into = target if direct and m is None else None
@@ -250,6 +256,8 @@ def correct_frames(data, plan, settings=RunSettings(), *, mask=None, out=None, n
         if into is None:
             result = units.back(result)
             target[...] = result if m is None else np.where(m, frames[k][region], result)
+        if written is not None:
+            written(flat_out[k])
         if noisy:
             _propagate(noisy, k, region, target, y, m, plan.model, units.inside, base)
         infos.append(info)

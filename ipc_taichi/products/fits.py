@@ -61,6 +61,7 @@ from .fitsfile import (
 )
 from .noise_arrays import NOISE_ARRAYS, noise_of
 from .options import ProductOptions, precision_for, resolve_model
+from .pages import OutputPages
 from .plan import ArrayFacts, Zeroth, plan_product, units_in
 from .provenance import Provenance
 
@@ -237,8 +238,7 @@ def process_fits(input_path, output_path, operation="decouple", *, model=None, o
                         f"{input_path}[{hdu_label(hdul, k)}]: tile-compressed; --tile reads "
                         "pixels through memory maps: run without --tile, or decompress the "
                         "file first (funpack)")
-        prov = Provenance(plan, settings, runtime.init(options.arch, options.precision),
-                          noise_text)
+        prov = Provenance(plan, settings, None, noise_text)  # its runtime: below
 
         def headers():
             out = {}
@@ -254,10 +254,12 @@ def process_fits(input_path, output_path, operation="decouple", *, model=None, o
             places = _write(output_path, lambda: write_skeleton(
                 tmp, input_path, hdul, headers(), dtypes))
             for p in plan.arrays:  # the per-HDU work of the plan
-                _, _, offset = places[p.index]
-                out = np.memmap(tmp, dtype=dtypes[p.index].newbyteorder(">"), mode="r+",
-                                offset=offset, shape=p.shape)
+                out = OutputPages(tmp, dtypes[p.index], places[p.index][2], p.shape)
+                if not settings.tile:  # the whole array's pages mapped while the runtime starts
+                    out.prefetch(read_array(input_path, hdul, p.index))
+                prov.ran_on(runtime.init(options.arch, options.precision))
                 record = cv.Unphysical(settings.unphysical)
+                done = False
                 try:
                     prov.infos[p.index] = _correct(
                         input_path, hdul, p, streams.Flags(
@@ -265,9 +267,9 @@ def process_fits(input_path, output_path, operation="decouple", *, model=None, o
                             settings.tile), out, settings, record,
                         _Noise(input_path, hdul, tmp, places, dtypes, noise[p.index], p))
                     prov.unphysical[p.index] = record.masked
-                    out.flush()
+                    done = True
                 finally:
-                    del out
+                    out.close(sync=done)
             _write(output_path, lambda: _rewrite_headers(tmp, places, headers(), output_path))
     return prov.summary(output_path)
 
@@ -275,11 +277,14 @@ def process_fits(input_path, output_path, operation="decouple", *, model=None, o
 def _correct(input_path, hdul, plan, flags, out, settings, record, noise):
     """Correct one science HDU of the plan (its :class:`~ipc_taichi.products.plan.ArrayPlan`;
     ``flags``: its :class:`~ipc_taichi.products.streams.Flags`) and its noise HDUs
-    (a :class:`_Noise`), whole or tile by tile."""
+    (a :class:`_Noise`), whole or tile by tile, into ``out`` (its
+    :class:`~ipc_taichi.products.pages.OutputPages`)."""
     if settings.tile:
-        return streams.tiled(input_path, hdul, plan, out, flags, settings, record)
+        return streams.tiled(input_path, hdul, plan, out.array, flags, settings, record,
+                             written=out.written)
     arrays = noise.read()
-    infos = streams.whole(input_path, hdul, plan, out, flags, settings, record, arrays)
+    infos = streams.whole(input_path, hdul, plan, out.array, flags, settings, record, arrays,
+                          written=out.written)
     noise.write(arrays)
     return infos
 

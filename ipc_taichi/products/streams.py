@@ -60,7 +60,7 @@ class Flags:
                             saturation=self.saturation)
 
 
-def whole(path, hdul, plan, out, flags, settings, record=None, noise=None):
+def whole(path, hdul, plan, out, flags, settings, record=None, noise=None, written=None):
     """Correct the science HDU of ``plan`` (its
     :class:`~ipc_taichi.products.plan.ArrayPlan`) in memory into ``out`` (a
     memory map of the output), by
@@ -68,24 +68,28 @@ def whole(path, hdul, plan, out, flags, settings, record=None, noise=None):
     ``settings``; ``record``: the
     :class:`~ipc_taichi.products.conventions.Unphysical` of this HDU; an
     interleaved frame is corrected in its contiguous image, every other sample
-    copied (``noise``: in the contiguous image)."""
+    copied (``noise``: in the contiguous image); ``written(frame)`` is called
+    with each frame of ``out`` once it is written (its writeback started:
+    :meth:`~ipc_taichi.products.pages.OutputPages.written`)."""
     original = read_array(path, hdul, plan.index)
     arrangement = plan.arrangement
     data = arrangement.to_science(original)
     target = out if arrangement.identity else np.empty(data.shape, out.dtype)
     _, infos = correct_frames(data, plan, settings, mask=flags.whole(plan.region, data),
-                              out=target, noise=noise, record=record)
+                              out=target, noise=noise, record=record,
+                              written=written if arrangement.identity else None)
     if not arrangement.identity:
         out[...] = arrangement.from_science(target, np.asarray(original))
     return infos
 
 
-def tiled(path, hdul, plan, out, flags, settings, record=None):
+def tiled(path, hdul, plan, out, flags, settings, record=None, written=None):
     """Decouple every frame of the science HDU of ``plan`` tile by tile (read
     and write through memory maps; ``settings.tile``); ``record`` as for
     :func:`whole`. A frame of a stack with nothing to decouple is left as it
     came and said once, as :func:`whole` leaves it
-    (:class:`~ipc_taichi.products.checks.LostFrames`)."""
+    (:class:`~ipc_taichi.products.checks.LostFrames`); ``written`` as for
+    :func:`whole`."""
     record = record if record is not None else cv.Unphysical(settings.unphysical)
     region, label, tile = plan.region, plan.label, settings.tile
     source = RawImage(path, hdul, plan.index)
@@ -146,13 +150,14 @@ def tiled(path, hdul, plan, out, flags, settings, record=None):
         except FrameLost as exc:  # one frame of a stack: left as it came, said
             infos.append(lost.keep(exc, "decouple"))
             _copy(out, source, lead, region)
-            continue
-        with named(where):
-            info = decouple_blocks(read, write, (ny, nx), tile, plan.model,
-                                   max_iter=settings.max_iter, tol=settings.tol,
-                                   arch=settings.arch, precision=settings.precision,
-                                   progress=settings.progress, read_mask=read_mask)
-        infos.append(info)
+        else:
+            with named(where):
+                infos.append(decouple_blocks(read, write, (ny, nx), tile, plan.model,
+                                             max_iter=settings.max_iter, tol=settings.tol,
+                                             arch=settings.arch, precision=settings.precision,
+                                             progress=settings.progress, read_mask=read_mask))
+        if written is not None:
+            written(out[lead])
     record.warn(label)
     if lost.said():
         warnings.warn(lost.said(), cv.ProductWarning, stacklevel=2)
