@@ -1,6 +1,6 @@
 """The output's memory map (ipc_taichi.products.pages): the bytes a view
-spans, each finished frame's writeback, the pages mapped ahead by a thread,
-and the same file with every one of them missing (another kernel or OS)."""
+spans, each finished frame's writeback started once it is final, and the
+same file where the call is missing (another OS)."""
 
 import numpy as np
 import pytest
@@ -30,21 +30,17 @@ def _skeleton(path, shape, offset=2880):
 
 
 @pytest.mark.parametrize("kick", [True, False])
-@pytest.mark.parametrize("ahead", [True, False])
-def test_frames_written_through_the_pages_are_the_file(tmp_path, monkeypatch, kick, ahead):
-    """Whatever the kernel offers (writeback started per frame or not, the
-    pages mapped ahead or not), the file holds the frames, big-endian, at
-    the offset, and nothing else is touched."""
+def test_frames_written_through_the_pages_are_the_file(tmp_path, monkeypatch, kick):
+    """Whether or not the OS has the call that starts a frame's writeback,
+    the file holds the frames, big-endian, at the offset, and nothing else
+    is touched."""
     if not kick:
         monkeypatch.setattr(pages, "_sync_file_range", lambda: None)
-    if not ahead:
-        monkeypatch.setattr(pages, "_madvise", lambda: None)
     shape = (4, 33, 70)
     source = np.random.default_rng(3).normal(100, 10, shape).astype(">f4")
     path = tmp_path / "out.bin"
     _skeleton(path, shape)
     out = OutputPages(path, np.float32, 2880, shape)
-    out.prefetch(source)
     for k in range(shape[0]):
         out.array[k] = source[k] * 2
         out.written(out.array[k])
@@ -55,33 +51,9 @@ def test_frames_written_through_the_pages_are_the_file(tmp_path, monkeypatch, ki
         assert not any(f.read(2880))
 
 
-def test_an_old_kernel_falls_back_to_read_ahead(tmp_path, monkeypatch):
-    """A kernel before 5.14 refuses MADV_POPULATE_*: the pager asks for the
-    inputs' read-ahead instead and maps no output page ahead."""
-    asked = []
-
-    def madvise(address, length, advice):
-        asked.append(advice)
-        return -1 if advice in (pages._MADV_POPULATE_READ, pages._MADV_POPULATE_WRITE) else 0
-
-    monkeypatch.setattr(pages, "_madvise", lambda: madvise)
-    shape = (3, 16, 16)
-    source = np.ones(shape, dtype=">f4")
-    path = tmp_path / "out.bin"
-    _skeleton(path, shape)
-    out = OutputPages(path, np.float32, 2880, shape)
-    out.prefetch(source)
-    out.array[...] = source
-    out.close()
-    assert asked[0] == pages._MADV_POPULATE_READ
-    assert pages._MADV_POPULATE_WRITE not in asked
-    assert asked.count(pages._MADV_WILLNEED) == shape[0]
-    np.testing.assert_array_equal(np.fromfile(path, ">f4", offset=2880).reshape(shape), source)
-
-
-def test_a_product_is_the_same_with_and_without_the_pager(cpu, tmp_path, monkeypatch):
-    """A ramp decoupled through the product path: the same bytes whether the
-    output's pages were mapped ahead and written back frame by frame or not."""
+def test_a_product_is_the_same_with_and_without_the_writeback(cpu, tmp_path, monkeypatch):
+    """A ramp decoupled through the product path: the same bytes whether its
+    frames' writeback was started frame by frame or left to the end."""
     rng = np.random.default_rng(11)
     cube = rng.normal(2000.0, 30.0, (3, 40, 48)).astype(np.float32)
     src = tmp_path / "ramp.fits"
@@ -90,7 +62,6 @@ def test_a_product_is_the_same_with_and_without_the_pager(cpu, tmp_path, monkeyp
     fits.HDUList([fits.PrimaryHDU(), hdu]).writeto(src)
     decouple_file(str(src), str(tmp_path / "a.fits"), law="constant:0.01", refpix=4)
     monkeypatch.setattr(pages, "_sync_file_range", lambda: None)
-    monkeypatch.setattr(pages, "_madvise", lambda: None)
     decouple_file(str(src), str(tmp_path / "b.fits"), law="constant:0.01", refpix=4)
     with fits.open(tmp_path / "a.fits") as a, fits.open(tmp_path / "b.fits") as b:
         np.testing.assert_array_equal(a["SCI"].data, b["SCI"].data)

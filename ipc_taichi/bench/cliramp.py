@@ -156,8 +156,8 @@ def copy_through_cli_io(input_path, output_path, index=1):
     copied byte for byte), the science array read (as float64, as the
     correction reads it) and written frame by frame through the output's
     :class:`~ipc_taichi.products.pages.OutputPages` as the command line
-    writes it (pages mapped ahead, each frame's writeback started once
-    written, synchronised before the rename), renamed into place. Run by (a) from its source
+    writes it (each frame's writeback started once written, synchronised
+    before the rename), renamed into place. Run by (a) from its source
     (:data:`IO_IMPORTS` first), so that its process loads what the command
     line's I/O loads, not the bench package (0.8 s more here)."""
     with open_fits(input_path, memmap=True) as hdul:
@@ -169,7 +169,6 @@ def copy_through_cli_io(input_path, output_path, index=1):
             out = OutputPages(tmp, dtype, places[index][2], data.shape)
             done = False
             try:
-                out.prefetch(data)
                 frames = out.array.reshape((-1,) + data.shape[-2:])
                 for k, frame in enumerate(np.asarray(data).reshape(frames.shape)):
                     frames[k] = np.asarray(frame, dtype=np.float64)

@@ -238,7 +238,8 @@ def process_fits(input_path, output_path, operation="decouple", *, model=None, o
                         f"{input_path}[{hdu_label(hdul, k)}]: tile-compressed; --tile reads "
                         "pixels through memory maps: run without --tile, or decompress the "
                         "file first (funpack)")
-        prov = Provenance(plan, settings, None, noise_text)  # its runtime: below
+        prov = Provenance(plan, settings, runtime.init(options.arch, options.precision),
+                          noise_text)
 
         def headers():
             out = {}
@@ -255,9 +256,6 @@ def process_fits(input_path, output_path, operation="decouple", *, model=None, o
                 tmp, input_path, hdul, headers(), dtypes))
             for p in plan.arrays:  # the per-HDU work of the plan
                 out = OutputPages(tmp, dtypes[p.index], places[p.index][2], p.shape)
-                if not settings.tile:  # the whole array's pages mapped while the runtime starts
-                    out.prefetch(read_array(input_path, hdul, p.index))
-                prov.ran_on(runtime.init(options.arch, options.precision))
                 record = cv.Unphysical(settings.unphysical)
                 done = False
                 try:

@@ -17,35 +17,24 @@ guarantee, the same error report, the wait overlapped.
 
 Where the call is missing (not Linux), the writeback is the final ``msync``
 alone, as before.
+
+Tried and not kept: mapping the input's and the output's pages ahead, in a
+thread, while Taichi is imported and started (``MADV_POPULATE_READ`` /
+``_WRITE``, 4 MB per call). The pages cost as much to map in one call as one
+fault at a time, and the thread slowed the main one (``import taichi`` 0.12
+-> 0.28-0.55 s, ``ti.init`` 0.10 -> 0.15-0.22 s: the process's memory map is
+locked while pages are mapped); the ramp above took longer with it.
 """
 
 import ctypes
 import functools
-import mmap
 import os
-import threading
 
 import numpy as np
 
 __all__ = ["OutputPages", "byte_range"]
 
-_MADV_WILLNEED = 3  # <sys/mman.h>: read ahead
-_MADV_POPULATE_READ = 22  # Linux 5.14: fault the range in (read from disk if need be)
-_MADV_POPULATE_WRITE = 23  # Linux 5.14: fault the range in, writeable
-_PIECE = 1 << 22  # bytes per madvise call of the pager (see _map_pages)
 _SYNC_FILE_RANGE_WRITE = 2  # <fcntl.h>: start writeback of the range's dirty pages, no wait
-
-
-@functools.cache
-def _madvise():
-    """libc's ``madvise``, or None."""
-    try:
-        call = ctypes.CDLL(None, use_errno=True).madvise
-    except (AttributeError, OSError):
-        return None
-    call.argtypes = [ctypes.c_void_p, ctypes.c_size_t, ctypes.c_int]
-    call.restype = ctypes.c_int
-    return call
 
 
 @functools.cache
@@ -83,25 +72,6 @@ class OutputPages:
         self.offset = offset
         self._call = _sync_file_range()
         self._fd = os.open(path, os.O_RDONLY) if self._call is not None else None
-        self._pager = None
-
-    def prefetch(self, source):
-        """Start mapping, in a thread, the pages of ``source`` (the input
-        array, as read: a memory map of the input file, or memory) and of
-        :attr:`array`, frame by frame, input then output (Linux >= 5.14's
-        ``MADV_POPULATE_READ`` / ``_WRITE``; an older kernel: the input's
-        read-ahead asked, ``MADV_WILLNEED``; elsewhere nothing). For a
-        correction that reads and writes the whole array anyway: its pages are
-        read from disk (a file not in the page cache) and mapped while the
-        runtime starts and the first frames are computed, not one page fault
-        at a time in the frame loop; the thread holds no lock the loop needs
-        (``madvise`` runs without the GIL)."""
-        if _madvise() is None or source.shape != self.array.shape or self.array.size == 0:
-            return
-        pairs = [(source[k], self.array[k]) for k in np.ndindex(self.array.shape[:-2])]
-        self._pager = threading.Thread(target=_map_pages, args=(pairs,), daemon=True,
-                                       name="ipc_taichi pages")
-        self._pager.start()
 
     def written(self, view):
         """Start the writeback of the pages under ``view`` (a view of
@@ -116,8 +86,6 @@ class OutputPages:
     def close(self, sync=True):
         """``msync`` the map when ``sync`` (the rest of its writeback, and any
         I/O error as :class:`OSError`), then unmap it."""
-        if self._pager is not None:  # never unmap pages a thread is still mapping
-            self._pager.join()
         try:
             if sync:
                 self.array.flush()
@@ -130,38 +98,3 @@ class OutputPages:
             os.close(self._fd)
             self._fd = None
 
-
-def _page_span(view):
-    """``(address, length)``: the whole pages under ``view``."""
-    low, high = byte_range(view, view)
-    low, high = view.ctypes.data + low, view.ctypes.data + high
-    start = low - low % mmap.PAGESIZE
-    return start, high - start
-
-
-def _map_pages(pairs):
-    """Map each ``(input, output)`` frame's pages in turn (see
-    :meth:`OutputPages.prefetch`); an old kernel's ``EINVAL`` falls back to
-    read-ahead of the inputs alone."""
-    call = _madvise()
-    populate = True
-
-    def advise(view, advice):
-        """``madvise`` in pieces of :data:`_PIECE` bytes: the process's memory
-        map stays locked for one piece at a time (the main thread's own
-        ``mmap`` calls, e.g. the runtime's, wait for no more than that)."""
-        start, length = _page_span(view)
-        for at in range(start, start + length, _PIECE):
-            if call(at, min(_PIECE, start + length - at), advice) != 0:
-                return False
-        return True
-
-    for source, target in pairs:
-        if source.size == 0:
-            continue
-        if populate:
-            populate = advise(source, _MADV_POPULATE_READ)  # False: not Linux 5.14
-            if populate:
-                advise(target, _MADV_POPULATE_WRITE)
-        if not populate:
-            advise(source, _MADV_WILLNEED)

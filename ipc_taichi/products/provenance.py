@@ -97,9 +97,7 @@ class Provenance:
         self.bits = int(plan.bits)
         self.pedestal_text = plan.pedestal_text
         self.coadds = int(first.coadds)
-        self.arch, self.precision = "", ""
-        if ran is not None:
-            self.ran_on(ran)
+        self.arch, self.precision = (ran.arch, ran.precision) if ran is not None else ("", "")
         self.tol, self.max_iter, self.tile = settings.tol, settings.max_iter, settings.tile
         self.all_science = plan.complete
         self.noise = noise
@@ -109,12 +107,6 @@ class Provenance:
         self.started = _now()
         for array in plan.arrays:
             self._add(array)
-
-    def ran_on(self, ran):
-        """Record the runtime the run is on (its ``arch`` and ``precision``;
-        known once it has started: the header written before the data holds
-        empty values of the same cards)."""
-        self.arch, self.precision = ran.arch, ran.precision
 
     def _add(self, array):
         """A science array of the run (an :class:`~ipc_taichi.products.plan.ArrayPlan`):
