@@ -55,8 +55,8 @@ with the rest and written as zero, which keeps the border what it was; a
 read beyond either end of the array is clamped to its end (it feeds border
 lanes only). The law is the other layouts' own,
 :func:`ipc_taichi._alpha.make_alpha` with ``lanes=L`` (its exponential
-builds ``2**n`` as a product of powers of two chosen by compares: vectors
-have no bit casts here; the table law reads its four corners lane by lane).
+builds ``2**n`` lane by lane from the lane's bits; the table law reads its
+cell's four corners as one record per lane from :func:`cell_table`).
 
 A thread's position (strip, row, vector, its index, the row's vectors and the
 arrays' last indices) travels to the device functions as one record
@@ -70,6 +70,7 @@ time): unary minus, ``ti.abs``, ``ti.exp``, casts and bit casts; the code
 below uses ``0 - x``, compares and selects instead.
 """
 
+import collections
 import functools
 import os
 import platform
@@ -82,7 +83,7 @@ from .errors import IPCInputError
 
 __all__ = ["LANES_ENV", "VECTOR_BYTES", "LANE_COUNTS", "VECTOR_FLAGS", "ALIGN", "vector_unit",
            "host_vector_unit", "vector_extensions", "forget_vector_unit", "lane_count",
-           "padded_width", "aligned_zeros", "lanes_kernel", "position_type"]
+           "padded_width", "aligned_zeros", "cell_table", "lanes_kernel", "position_type"]
 
 LANES_ENV = "IPC_TAICHI_LANES"
 """The environment variable that names the vector unit to compile for
@@ -199,6 +200,32 @@ def aligned_zeros(shape, dtype, fill=0):
     arr = raw[start:start + count * dtype.itemsize].view(dtype).reshape(shape)
     arr[...] = fill
     return arr
+
+
+_cells = collections.OrderedDict()  # id(table) -> (table, its cells): one build per table
+
+
+def cell_table(table):
+    """The law's ``n x n`` table (a 2-D host array, its dtype kept) as the
+    ``lanes`` step reads it: one record of four values per cell, record
+    ``i * (n - 1) + j`` holding the corners ``(t[i, j], t[i, j + 1],
+    t[i + 1, j], t[i + 1, j + 1])`` of cell ``(i, j)``, 64-byte aligned.
+    One vector load per lane then brings a pair's four corners (one index
+    taken out of the index vector instead of four; the same values: the
+    outputs are the same bits). ``(n - 1)**2`` records: 1 MB for a 257x257
+    f32 table, four times the table. Built once per table (the engine keeps
+    the table it passes; the last 8 are kept)."""
+    hit = _cells.get(id(table))
+    if hit is None or hit[0] is not table:
+        t = np.asarray(table)
+        records = aligned_zeros((max(1, (t.shape[0] - 1) * (t.shape[1] - 1)), 4), t.dtype)
+        if min(t.shape) > 1:
+            for c, (di, dj) in enumerate(((0, 0), (0, 1), (1, 0), (1, 1))):
+                records[:, c] = t[di:t.shape[0] - 1 + di, dj:t.shape[1] - 1 + dj].ravel()
+        hit = _cells[id(table)] = (table, records)
+        while len(_cells) > 8:
+            _cells.popitem(last=False)
+    return hit[1]
 
 
 def position_type():
@@ -404,9 +431,10 @@ def _lane_functions(lanes):
 
 def lanes_kernel(plan, spread):
     """The ``lanes`` layout's step for a :class:`~ipc_taichi._layouts.StepPlan`
-    (the arguments of the other layouts' steps, the frame arrays as vectors;
-    ``width``: the frame's width, ``strip``: rows per task, ``spread``: see
-    ``step_sweep`` in :mod:`ipc_taichi._kernels`)."""
+    (the arguments of the other layouts' steps, the frame arrays as vectors,
+    the table as :func:`cell_table`'s records; ``width``: the frame's width,
+    ``strip``: rows per task, ``spread``: see ``step_sweep`` in
+    :mod:`ipc_taichi._kernels`)."""
     import taichi as ti
 
     config = plan.config
@@ -415,6 +443,7 @@ def lanes_kernel(plan, spread):
     vectors = ti.types.ndarray(dtype=ti.types.vector(lanes, real), ndim=1)
     scalars = ti.types.ndarray(dtype=real, ndim=1)
     small = ti.types.ndarray(dtype=real, ndim=2)
+    cells = ti.types.ndarray(dtype=ti.types.vector(4, real), ndim=1)  # cell_table's records
     coefficients = law_functions(plan)[0]
     prologue, vector_flow = _vector_functions(plan)
     largest, magnitude = _lane_functions(lanes)
@@ -422,7 +451,7 @@ def lanes_kernel(plan, spread):
 
     @ti.kernel
     def step_lanes(src: vectors, base: vectors, dst: vectors, ok: vectors, bonds: vectors,
-                   p: scalars, w: small, table: scalars, sign: real, part: small,
+                   p: scalars, w: small, table: cells, sign: real, part: small,
                    ring: vectors, strip: ti.i32, width: ti.i32):
         nc = (width + 2 * r + lanes - 1) // lanes
         h = src.shape[0] // nc - 2 * r

@@ -32,6 +32,7 @@ from . import _kernels, runtime
 from ._kernels import SPREAD, pixel_kernel, sweep_kernel, tree_rows
 from ._lanes import (
     aligned_zeros,
+    cell_table,
     forget_vector_unit,
     host_vector_unit,
     lane_count,
@@ -210,7 +211,7 @@ class Lanes(Layout):
                                     for a in (src, ws.measured, dst, ok, ws.ring))
         if not config.mapped:  # unused: any vectors
             bonds = ok
-        return src, base, dst, ok, bonds, _flat(table), ring
+        return src, base, dst, ok, bonds, cell_table(table), ring
 
     def bond_array(self, padded, reach, precision):
         n, py, px = padded.shape
