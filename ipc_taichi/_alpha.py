@@ -112,7 +112,7 @@ def make_exp(real_is_f64, vector=0):
     return exp
 
 
-def make_alpha(law_kind, precision, fast_exp=True, flat_table=False, lanes=0):
+def make_alpha(law_kind, precision, fast_exp=True, flat_table=False, lanes=0, cells=False):
     """The Taichi device function ``alpha(s, n, p, table)`` of a law kind: the
     one device-side evaluation of the coupling law, used by every kernel
     layout and timed by the benchmark's floor measurement.
@@ -133,10 +133,11 @@ def make_alpha(law_kind, precision, fast_exp=True, flat_table=False, lanes=0):
     ``lanes`` layout, :mod:`ipc_taichi._lanes`): the same formula lane by lane
     (``parametric`` and ``bilinear`` are shared), written without what such
     vectors do not take (unary minus, ``abs``, casts: ``0 - x`` and selects,
-    for scalars too, with the same values to the bit). The table comes as its
+    for scalars too, with the same values to the bit). The table's corners
+    are read lane by lane from the flat table, or with ``cells`` from its
     cells (:func:`ipc_taichi._lanes.cell_table`: the four corners of cell
-    ``(i, j)`` in record ``i * (n - 1) + j``), one record read per lane: one
-    index taken out of the vector per lane instead of four (the same corners,
+    ``(i, j)`` in record ``i * (n - 1) + j``), one record per lane: one index
+    taken out of the index vector per lane instead of four (the same corners,
     the same bits).
     """
     import taichi as ti
@@ -170,9 +171,9 @@ def make_alpha(law_kind, precision, fast_exp=True, flat_table=False, lanes=0):
 
     @ti.func
     def lane_alpha(s, n, p: ti.template(), table: ti.template()):
-        """:func:`alpha` of two vectors of ``lanes`` signals (``table``: the
-        cells, one record of four corners read per lane: no vector casts or
-        gathers here)."""
+        """:func:`alpha` of two vectors of ``lanes`` signals (the table's
+        corners read lane by lane, from the flat table or its cells: no vector
+        casts or gathers here)."""
         a = s * 0.0 + p[4]
         if ti.static(table_law):
             last = p[2]
@@ -183,11 +184,17 @@ def make_alpha(law_kind, precision, fast_exp=True, flat_table=False, lanes=0):
             j0 = [ti.min(ti.cast(v[q], ti.i32), top) for q in ti.static(range(lanes))]
             fu = u - ti.Vector([ti.cast(i0[q], real) for q in ti.static(range(lanes))], dt=real)
             fv = v - ti.Vector([ti.cast(j0[q], real) for q in ti.static(range(lanes))], dt=real)
-            # one cell record per lane: (t[i0, j0], t[i0, j0 + 1], t[i0 + 1, j0], t[i0 + 1, j0 + 1])
-            cell = [table[i0[q] * (top + 1) + j0[q]] for q in ti.static(range(lanes))]
-            t = [ti.Vector([cell[q][c] for q in ti.static(range(lanes))], dt=real)
-                 for c in ti.static(range(4))]
-            a = bilinear(fu, fv, t[0], t[1], t[2], t[3])
+            if ti.static(cells):
+                # a record per lane: (t[i0, j0], t[i0, j0 + 1], t[i0 + 1, j0], t[i0 + 1, j0 + 1])
+                cell = [table[i0[q] * (top + 1) + j0[q]] for q in ti.static(range(lanes))]
+                t = [ti.Vector([cell[q][c] for q in ti.static(range(lanes))], dt=real)
+                     for c in ti.static(range(4))]
+                a = bilinear(fu, fv, t[0], t[1], t[2], t[3])
+            else:
+                t = [ti.Vector([corner(table, i0[q] + di, j0[q] + dj, top + 2)
+                                for q in ti.static(range(lanes))], dt=real)
+                     for di, dj in ti.static(((0, 0), (0, 1), (1, 0), (1, 1)))]
+                a = bilinear(fu, fv, t[0], t[1], t[2], t[3])
         elif ti.static(not constant_law):
             a = parametric(s, n, p)
         return a

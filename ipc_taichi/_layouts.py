@@ -38,6 +38,7 @@ from ._lanes import (
     lane_count,
     lanes_kernel,
     padded_width,
+    reads_cells,
 )
 from .errors import IPCInputError
 
@@ -211,7 +212,8 @@ class Lanes(Layout):
                                     for a in (src, ws.measured, dst, ok, ws.ring))
         if not config.mapped:  # unused: any vectors
             bonds = ok
-        return src, base, dst, ok, bonds, cell_table(table), ring
+        table = cell_table(table) if reads_cells(config.precision) else _flat(table)
+        return src, base, dst, ok, bonds, table, ring
 
     def bond_array(self, padded, reach, precision):
         n, py, px = padded.shape
