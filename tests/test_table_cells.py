@@ -1,8 +1,9 @@
-"""The table law in the CPU's ``lanes`` step, which reads the table as cells
-(one record of a cell's four corners per lane, ``ipc_taichi/_lanes.py``
-``cell_table``): bit for bit the scalar ``sweep``'s flat-table lookup, on a
-table whose every cell differs, with signals beyond both ends of its range
-(the clamped first and last cells) and a frame whose rows end inside a vector."""
+"""The table law in the CPU's ``lanes`` step, which in f32 reads the table as
+cells (one record of a cell's four corners per lane, ``ipc_taichi/_lanes.py``
+``cell_table``) and in f64 flat: bit for bit the scalar ``sweep``'s
+flat-table lookup, on a table whose every cell differs, with signals beyond
+both ends of its range (the clamped first and last cells) and a frame whose
+rows end inside a vector; two tables in turn each read from its own cells."""
 
 import numpy as np
 import pytest
@@ -42,12 +43,16 @@ def test_cells_bit_identical_to_the_flat_table(cpu, precision):
 
 
 def test_two_tables_in_turn(cpu):
-    """Two table laws alternately in one process (each its own cells): each
-    result the same bits as its first run."""
+    """Two table laws alternately in one process (f32: each its own cells):
+    each result the same bits as its first run."""
     frame = np.random.default_rng(8).uniform(0.0, 60000.0, (9, 21))
     laws = [TabulatedLaw(0.0, 65535.0 / 8, _random_table(9, seed)) for seed in (1, 2)]
-    first = [np.asarray(ipc_taichi.couple(frame, law=law, layout="lanes")) for law in laws]
-    assert not np.array_equal(first[0], first[1])
-    again = [np.asarray(ipc_taichi.couple(frame, law=law, layout="lanes"))
-             for law in reversed(laws)][::-1]
-    assert all(np.array_equal(a, b) for a, b in zip(first, again))
+    run = dict(layout="lanes", precision="f32")
+    try:
+        first = [np.asarray(ipc_taichi.couple(frame, law=law, **run)) for law in laws]
+        assert not np.array_equal(first[0], first[1])
+        again = [np.asarray(ipc_taichi.couple(frame, law=law, **run))
+                 for law in reversed(laws)][::-1]
+        assert all(np.array_equal(a, b) for a, b in zip(first, again))
+    finally:
+        ipc_taichi.init("cpu", "f64")
