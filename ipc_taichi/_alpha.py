@@ -191,10 +191,16 @@ def make_alpha(law_kind, precision, fast_exp=True, flat_table=False, lanes=0, ce
                      for c in ti.static(range(4))]
                 a = bilinear(fu, fv, t[0], t[1], t[2], t[3])
             else:
-                t = [ti.Vector([corner(table, i0[q] + di, j0[q] + dj, top + 2)
-                                for q in ti.static(range(lanes))], dt=real)
-                     for di, dj in ti.static(((0, 0), (0, 1), (1, 0), (1, 1)))]
-                a = bilinear(fu, fv, t[0], t[1], t[2], t[3])
+                m = top + 2
+                t00 = ti.Vector([corner(table, i0[q], j0[q], m)
+                                 for q in ti.static(range(lanes))], dt=real)
+                t01 = ti.Vector([corner(table, i0[q], j0[q] + 1, m)
+                                 for q in ti.static(range(lanes))], dt=real)
+                t10 = ti.Vector([corner(table, i0[q] + 1, j0[q], m)
+                                 for q in ti.static(range(lanes))], dt=real)
+                t11 = ti.Vector([corner(table, i0[q] + 1, j0[q] + 1, m)
+                                 for q in ti.static(range(lanes))], dt=real)
+                a = bilinear(fu, fv, t00, t01, t10, t11)
         elif ti.static(not constant_law):
             a = parametric(s, n, p)
         return a
