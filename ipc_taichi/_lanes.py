@@ -267,8 +267,7 @@ def _pair_functions(plan):
     law_at, combined_at, total_at = plan.law_at, plan.combined_at, plan.total_at
     alpha = make_alpha(config.law_kind, config.precision, lanes=lanes,
                        cells=reads_cells(config.precision))
-    # the map of the bond p -- p + d: the offset u = +-d it is stored under
-    # (k, whether it is stored at the other end, p + d)
+    # the bond p -- p + d: (k of the offset u = +-d it is stored under, whether at p + d)
     bond_index = {**{u: (k, 0) for k, u in enumerate(offsets)},
                   **{(-u[0], -u[1]): (k, 1) for k, u in enumerate(offsets)}}
 
