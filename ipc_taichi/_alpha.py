@@ -112,7 +112,7 @@ def make_exp(real_is_f64, vector=0):
     return exp
 
 
-def make_alpha(law_kind, precision, fast_exp=True, flat_table=False, lanes=0):
+def make_alpha(law_kind, precision, fast_exp=True, flat_table=False, lanes=0, cells=False):
     """The Taichi device function ``alpha(s, n, p, table)`` of a law kind: the
     one device-side evaluation of the coupling law, used by every kernel
     layout and timed by the benchmark's floor measurement.
@@ -130,11 +130,15 @@ def make_alpha(law_kind, precision, fast_exp=True, flat_table=False, lanes=0):
     array's shape at each read).
 
     ``lanes``: ``s`` and ``n`` are Taichi vectors of that many pixels (the
-    ``lanes`` layout, :mod:`ipc_taichi._lanes`; the table flat): the same
-    formula lane by lane (``parametric`` and ``bilinear`` are shared), written
-    without what such vectors do not take (unary minus, ``abs``, casts:
-    ``0 - x`` and selects, for scalars too, with the same values to the bit;
-    the table's corners read lane by lane).
+    ``lanes`` layout, :mod:`ipc_taichi._lanes`): the same formula lane by lane
+    (``parametric`` and ``bilinear`` are shared), written without what such
+    vectors do not take (unary minus, ``abs``, casts: ``0 - x`` and selects,
+    for scalars too, with the same values to the bit). The table's corners
+    are read lane by lane from the flat table, or with ``cells`` from its
+    cells (:func:`ipc_taichi._lanes.cell_table`: the four corners of cell
+    ``(i, j)`` in record ``i * (n - 1) + j``), one record per lane: one index
+    taken out of the index vector per lane instead of four (the same corners,
+    the same bits).
     """
     import taichi as ti
 
@@ -168,27 +172,35 @@ def make_alpha(law_kind, precision, fast_exp=True, flat_table=False, lanes=0):
     @ti.func
     def lane_alpha(s, n, p: ti.template(), table: ti.template()):
         """:func:`alpha` of two vectors of ``lanes`` signals (the table's
-        corners read lane by lane: no vector casts or gathers here)."""
+        corners read lane by lane, from the flat table or its cells: no vector
+        casts or gathers here)."""
         a = s * 0.0 + p[4]
         if ti.static(table_law):
             last = p[2]
             u = clamp((s - p[0]) * p[1], last)
             v = clamp((n - p[0]) * p[1], last)
             top = ti.cast(last, ti.i32) - 1
-            m = top + 2
             i0 = [ti.min(ti.cast(u[q], ti.i32), top) for q in ti.static(range(lanes))]
             j0 = [ti.min(ti.cast(v[q], ti.i32), top) for q in ti.static(range(lanes))]
             fu = u - ti.Vector([ti.cast(i0[q], real) for q in ti.static(range(lanes))], dt=real)
             fv = v - ti.Vector([ti.cast(j0[q], real) for q in ti.static(range(lanes))], dt=real)
-            t00 = ti.Vector([corner(table, i0[q], j0[q], m) for q in ti.static(range(lanes))],
-                            dt=real)
-            t01 = ti.Vector([corner(table, i0[q], j0[q] + 1, m)
-                             for q in ti.static(range(lanes))], dt=real)
-            t10 = ti.Vector([corner(table, i0[q] + 1, j0[q], m)
-                             for q in ti.static(range(lanes))], dt=real)
-            t11 = ti.Vector([corner(table, i0[q] + 1, j0[q] + 1, m)
-                             for q in ti.static(range(lanes))], dt=real)
-            a = bilinear(fu, fv, t00, t01, t10, t11)
+            if ti.static(cells):
+                # a record per lane: (t[i0, j0], t[i0, j0 + 1], t[i0 + 1, j0], t[i0 + 1, j0 + 1])
+                cell = [table[i0[q] * (top + 1) + j0[q]] for q in ti.static(range(lanes))]
+                t = [ti.Vector([cell[q][c] for q in ti.static(range(lanes))], dt=real)
+                     for c in ti.static(range(4))]
+                a = bilinear(fu, fv, t[0], t[1], t[2], t[3])
+            else:
+                m = top + 2
+                t00 = ti.Vector([corner(table, i0[q], j0[q], m)
+                                 for q in ti.static(range(lanes))], dt=real)
+                t01 = ti.Vector([corner(table, i0[q], j0[q] + 1, m)
+                                 for q in ti.static(range(lanes))], dt=real)
+                t10 = ti.Vector([corner(table, i0[q] + 1, j0[q], m)
+                                 for q in ti.static(range(lanes))], dt=real)
+                t11 = ti.Vector([corner(table, i0[q] + 1, j0[q] + 1, m)
+                                 for q in ti.static(range(lanes))], dt=real)
+                a = bilinear(fu, fv, t00, t01, t10, t11)
         elif ti.static(not constant_law):
             a = parametric(s, n, p)
         return a

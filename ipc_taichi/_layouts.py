@@ -32,11 +32,13 @@ from . import _kernels, runtime
 from ._kernels import SPREAD, pixel_kernel, sweep_kernel, tree_rows
 from ._lanes import (
     aligned_zeros,
+    cell_table,
     forget_vector_unit,
     host_vector_unit,
     lane_count,
     lanes_kernel,
     padded_width,
+    reads_cells,
 )
 from .errors import IPCInputError
 
@@ -210,7 +212,8 @@ class Lanes(Layout):
                                     for a in (src, ws.measured, dst, ok, ws.ring))
         if not config.mapped:  # unused: any vectors
             bonds = ok
-        return src, base, dst, ok, bonds, _flat(table), ring
+        table = cell_table(table) if reads_cells(config.precision) else _flat(table)
+        return src, base, dst, ok, bonds, table, ring
 
     def bond_array(self, padded, reach, precision):
         n, py, px = padded.shape
