@@ -42,7 +42,7 @@ def _sync_file_range():
     """libc's ``sync_file_range`` (Linux), or None."""
     try:
         call = ctypes.CDLL(None, use_errno=True).sync_file_range
-    except (AttributeError, OSError):
+    except (AttributeError, OSError, TypeError):  # not in this libc; Windows: no CDLL(None)
         return None
     call.argtypes = [ctypes.c_int, ctypes.c_int64, ctypes.c_int64, ctypes.c_uint]
     call.restype = ctypes.c_int
