@@ -215,7 +215,10 @@ def measure_on(folder):
             "dark": f"{dark_groups} x {size}^2", "set_gb": disk / 1e9,
             "calibrate_s": run[0], "calibrate_peak_gb": run[1] / 1e9, "load_before": load,
             "chosen": rep.get("fit", {}).get("chosen"), "alpha_x": _alpha_x(model),
-            "gain": rep.get("gain", {}).get("measured")}
+            "gain": rep.get("gain", {}).get("measured"),
+            "read_noise": rep.get("provenance", {}).get("read_noise_e"),
+            "bf_sigma": rep.get("brighter_fatter", {}).get("significance"),
+            "bf_detected": rep.get("brighter_fatter", {}).get("detected")}
 
 
 def _alpha_x(model_path):
@@ -235,6 +238,8 @@ def calibrate_full_section(rows, cpu, load):
                       "peak RSS": f"{r['calibrate_peak_gb']:.2f} GB",
                       "making the set": f"{r['make_s']:.0f} s, {r['make_peak_gb']:.2f} GB",
                       "gain measured": (f"{r['gain']:.4g} e-/DN" if r.get("gain") else "-"),
+                      "brighter-fatter": (f"{r['bf_sigma']:.1f} sigma" if r.get("bf_sigma")
+                                          is not None else "-"),
                       "law": r.get("chosen") or "-",
                       "alpha_x(10 ke-, 0)": (f"{r['alpha_x']:.5f}" if r.get("alpha_x")
                                              else "-")} for r in rows],

@@ -390,7 +390,16 @@ def _merge_sparse(edges, values, pixels, min_count, min_pixels):
 def read_noise_from_darks(groups, mask=None):
     """Read noise per read [e-] of a ramp or stack: the robust standard
     deviation of differences of consecutive frames, over sqrt(2) (dark shot
-    noise between two reads is assumed small beside it)."""
+    noise between two reads is assumed small beside it).
+
+    The robust deviation is taken from the interquartile range of the
+    differences with each distinct value spread over the half-way points to
+    its neighbours (:func:`_quantised_sigma`): DN data are integers, and the
+    median absolute deviation of integers is an integer number of DN, which
+    put the read noise 5.7 % low (11.32 e- for 12 e- at 1.8 e-/DN) and, held
+    fixed in the flat ramps' fit, the gain 1.6 % low. The quantisation itself
+    is read noise of every read (``step^2 / 12``) and stays in the value.
+    """
     groups = np.asarray(groups, dtype=np.float64)
     if groups.ndim != 3 or groups.shape[0] < 2:
         return None
@@ -401,6 +410,33 @@ def read_noise_from_darks(groups, mask=None):
             m = np.asarray(mask, bool)
             d = np.where(m if m.ndim == 2 else m[0], np.nan, d)
         d = d[::max(1, d.shape[0] // 256), ::max(1, d.shape[1] // 256)]
-        values.append(_robust_sigma(d - np.nanmedian(d)) / np.sqrt(2.0))
+        values.append(_quantised_sigma(d) / np.sqrt(2.0))
     values = [v for v in values if np.isfinite(v)]
     return float(np.median(values)) if values else None
+
+
+IQR_PER_SIGMA = 1.3489795003921634
+"""The interquartile range of a normal distribution over its standard deviation."""
+
+
+def _quantised_sigma(values):
+    """A robust standard deviation that does not step with quantised data: the
+    interquartile range of the empirical distribution with each distinct value
+    spread evenly over the half-way points to its neighbours (DN integers:
+    over ``v +- 1/2`` DN), over :data:`IQR_PER_SIGMA`. For continuous data
+    (every value distinct) this is the ordinary interquartile range. Values
+    within 1e-6 of the ordinary range are one value (DN times a gain that is
+    not a power of two differ in their last bits)."""
+    v = np.asarray(values, dtype=np.float64)
+    v = v[np.isfinite(v)]
+    if v.size < 2:
+        return float("nan")
+    tol = 1e-6 * np.subtract(*np.percentile(v, [75, 25]))
+    u, n = np.unique(np.round(v / tol) * tol if tol > 0 else v, return_counts=True)
+    if u.size < 2:
+        return 0.0
+    half = np.diff(u) / 2.0
+    edges = np.concatenate([[u[0] - half[0]], u[:-1] + half, [u[-1] + half[-1]]])
+    cdf = np.concatenate([[0.0], np.cumsum(n)]) / v.size
+    q1, q3 = np.interp([0.25, 0.75], cdf, edges)
+    return float((q3 - q1) / IQR_PER_SIGMA)
