@@ -8,7 +8,7 @@ into place its pages are synchronised to disk (``msync``), which reports an
 I/O error the writes themselves cannot (a memory map has no ``write`` call
 to fail). Left to the end, that wait is the disk's time for the whole array
 (a Roman-like 4096x4096 x 12 float32 ramp, 805 MB: 0.21-0.37 s on a 2-core
-AMD EPYC VM, a quarter of the ramp's correction). :class:`OutputPages` starts
+AMD EPYC VM, about a seventh of the whole command's time). :class:`OutputPages` starts
 each frame's writeback as soon as the frame is written (Linux's
 ``sync_file_range(SYNC_FILE_RANGE_WRITE)``: the kernel queues the I/O and
 returns), so the disk works while the next frame is computed and the final
